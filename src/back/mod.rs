@@ -1,0 +1,656 @@
+//! Backends: IR blocks to text, written as they arrive.
+//!
+//! [`rrf`] (RepRapFirmware 3.x, CNC mode) and [`gcode`] (plain ISO/LinuxCNC) share one
+//! emitter that prints absolute millimetre coordinates at fixed precision and elides modal
+//! words (motion code, feed, plane, units, distance mode) and unchanged axes. [`ir`] prints
+//! the IR text dump.
+
+pub mod gcode;
+pub mod ir;
+pub mod number;
+pub mod rrf;
+
+use std::io::Write;
+
+use serde::{Deserialize, Serialize};
+
+use crate::diag::Diagnostic;
+use crate::ir::{
+    AXIS_COUNT, Axis, Block, BlockKind, Comment, CommentStyle, FeedMode, Joints, Motion,
+    MotionKind, OffsetChange, Plane, Target,
+};
+use number::{to_units, write_units};
+
+/// A sink for IR blocks.
+pub trait Backend {
+    /// Writes one block. An `Err` is a diagnostic about the block (an IR the backend
+    /// cannot express) or an I/O failure.
+    fn write_block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic>;
+    /// Flushes the output at the end of the program.
+    fn finish(&mut self) -> Result<(), Diagnostic>;
+}
+
+/// Digits after the decimal point, per kind of value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Decimals {
+    /// Linear axes and arc offsets, mm.
+    pub linear: u8,
+    /// Rotary axes, degrees.
+    pub rotary: u8,
+    /// The extruder axis, mm.
+    pub extruder: u8,
+    /// Feed rates.
+    pub feed: u8,
+}
+
+impl Default for Decimals {
+    fn default() -> Self {
+        Decimals {
+            linear: 3,
+            rotary: 3,
+            extruder: 5,
+            feed: 1,
+        }
+    }
+}
+
+impl Decimals {
+    /// Decimals for an axis.
+    pub fn axis(&self, axis: Axis) -> u8 {
+        if axis == Axis::E {
+            self.extruder
+        } else if axis.is_rotary() {
+            self.rotary
+        } else {
+            self.linear
+        }
+    }
+}
+
+/// How comments are written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CommentOutput {
+    /// As in the source: `( )` or `;`.
+    AsInput,
+    /// Always `;`.
+    Semicolon,
+    /// Always `( )` (a comment containing parentheses falls back to `;`).
+    Paren,
+    /// Comments are dropped (smallest output for controllers with little memory).
+    Strip,
+}
+
+/// How the extruder axis is written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Extrusion {
+    /// M83: each move's E is its own length; rounding never accumulates.
+    Relative,
+    /// M82: E is a running position.
+    Absolute,
+}
+
+/// Settings both G-code backends share.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Format {
+    pub decimals: Decimals,
+    pub trim_zeros: bool,
+    pub comments: CommentOutput,
+    pub line_numbers: bool,
+    pub checksums: bool,
+    pub modal_motion: bool,
+    pub extrusion: Extrusion,
+    pub dwell_milliseconds: bool,
+    pub dwell_letter: char,
+}
+
+/// Which controller the text is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Flavor {
+    Rrf { inverse_time: bool, unsupported: rrf::Unsupported },
+    Plain,
+}
+
+/// What the controller is known to be in after what has been printed. `None` means
+/// unknown (program start, or after a line passed through as text).
+#[derive(Debug, Clone, Default)]
+struct Modes {
+    metric: Option<bool>,
+    absolute: Option<bool>,
+    plane: Option<Plane>,
+    feed_mode: Option<FeedMode>,
+    feed: Option<i64>,
+    motion: Option<&'static str>,
+    e_relative: Option<bool>,
+}
+
+/// The shared G-code emitter.
+pub(crate) struct Emitter<W: Write> {
+    out: W,
+    flavor: Flavor,
+    fmt: Format,
+    line: String,
+    number: u64,
+    modes: Modes,
+    /// Last printed program-frame value per axis, in print units.
+    printed: [Option<i64>; AXIS_COUNT],
+    /// IR-frame position after the last block.
+    pos: Joints,
+    offsets: [f64; AXIS_COUNT],
+    /// Running E in print units (IR frame), for relative extrusion.
+    e_units: Option<i64>,
+}
+
+impl<W: Write> Emitter<W> {
+    pub(crate) fn new(out: W, flavor: Flavor, fmt: Format) -> Self {
+        Emitter {
+            out,
+            flavor,
+            fmt,
+            line: String::with_capacity(128),
+            number: 0,
+            modes: Modes::default(),
+            printed: [None; AXIS_COUNT],
+            pos: Joints::default(),
+            offsets: [0.0; AXIS_COUNT],
+            e_units: None,
+        }
+    }
+
+    fn word(&mut self, letter: char, value: f64, decimals: u8, block: &Block) -> Result<(), Diagnostic> {
+        let units = to_units(value, decimals).ok_or_else(|| too_large(letter, value, block))?;
+        self.word_units(letter, units, decimals);
+        Ok(())
+    }
+
+    fn word_units(&mut self, letter: char, units: i64, decimals: u8) {
+        self.space();
+        self.line.push(letter);
+        write_units(&mut self.line, units, decimals, self.fmt.trim_zeros);
+    }
+
+    fn space(&mut self) {
+        if !self.line.is_empty() {
+            self.line.push(' ');
+        }
+    }
+
+    fn text(&mut self, s: &str) {
+        self.space();
+        self.line.push_str(s);
+    }
+
+    /// Ends the current line, adding line number and checksum when configured, then
+    /// the comments.
+    fn end_line(&mut self, comments: &[Comment], numbered: bool) -> Result<(), Diagnostic> {
+        let mut comments = comments;
+        if self.fmt.comments == CommentOutput::Strip {
+            comments = &[];
+        }
+        let body_empty = self.line.is_empty();
+        if !body_empty {
+            if numbered && self.fmt.line_numbers {
+                self.number += 1;
+                let prefix = format!("N{} ", self.number);
+                self.line.insert_str(0, &prefix);
+            }
+            if numbered && self.fmt.checksums {
+                let cs = self.line.bytes().fold(0u8, |a, b| a ^ b);
+                self.line.push('*');
+                self.line.push_str(itoa::Buffer::new().format(cs));
+            }
+        }
+        // A checksummed line carries no comment; one `;` comment per line at most.
+        let mut own_lines: &[Comment] = &[];
+        let inline_allowed = !(numbered && self.fmt.checksums) || body_empty;
+        if inline_allowed {
+            let mut used_semicolon = false;
+            for (i, c) in comments.iter().enumerate() {
+                let style = self.comment_style(c);
+                if used_semicolon {
+                    own_lines = &comments[i..];
+                    break;
+                }
+                if style == CommentStyle::Semicolon && self.fmt.comments == CommentOutput::Semicolon && i + 1 < comments.len() {
+                    // Only the last inline comment may be a `;` comment.
+                    self.push_comment(c, style);
+                    own_lines = &comments[i + 1..];
+                    break;
+                }
+                self.push_comment(c, style);
+                used_semicolon = style == CommentStyle::Semicolon;
+            }
+        } else {
+            own_lines = comments;
+        }
+        if !self.line.is_empty() {
+            self.line.push('\n');
+            self.out.write_all(self.line.as_bytes()).map_err(io_error)?;
+        }
+        self.line.clear();
+        for c in own_lines {
+            let style = self.comment_style(c);
+            self.push_comment(c, style);
+            self.line.push('\n');
+            self.out.write_all(self.line.as_bytes()).map_err(io_error)?;
+            self.line.clear();
+        }
+        Ok(())
+    }
+
+    fn comment_style(&self, c: &Comment) -> CommentStyle {
+        let wanted = match self.fmt.comments {
+            CommentOutput::AsInput | CommentOutput::Strip => c.style,
+            CommentOutput::Semicolon => CommentStyle::Semicolon,
+            CommentOutput::Paren => CommentStyle::Paren,
+        };
+        if wanted == CommentStyle::Paren && !balanced(&c.text) {
+            CommentStyle::Semicolon
+        } else {
+            wanted
+        }
+    }
+
+    fn push_comment(&mut self, c: &Comment, style: CommentStyle) {
+        if !self.line.is_empty() {
+            self.line.push(' ');
+        }
+        match style {
+            CommentStyle::Paren => {
+                self.line.push('(');
+                self.line.push_str(&c.text);
+                self.line.push(')');
+            }
+            CommentStyle::Semicolon => {
+                self.line.push(';');
+                self.line.push_str(&c.text);
+            }
+        }
+    }
+
+    /// Prints the mode words the controller needs before a move, on their own line.
+    fn ensure_modes(&mut self, motion: &Motion, prints_e: bool, block: &Block) -> Result<(), Diagnostic> {
+        let mut setup = String::new();
+        if self.modes.metric != Some(true) {
+            setup.push_str("G21 ");
+            self.modes.metric = Some(true);
+        }
+        if self.modes.absolute != Some(true) {
+            setup.push_str("G90 ");
+            self.modes.absolute = Some(true);
+        }
+        if !matches!(motion.kind, MotionKind::Rapid) && self.modes.feed_mode != Some(motion.feed.mode) {
+            if let (Flavor::Rrf { inverse_time: false, .. }, FeedMode::InverseTime) = (self.flavor, motion.feed.mode) {
+                return Err(Diagnostic::error(
+                    "rrf::inverse-time",
+                    "inverse time feed (G93) needs RepRapFirmware 3.5 or newer",
+                )
+                .at_span(block.span)
+                .with_help("set `inverse_time = true` in the rrf backend options if the firmware is 3.5+"));
+            }
+            if let (Flavor::Rrf { .. }, FeedMode::PerRevolution) = (self.flavor, motion.feed.mode) {
+                return Err(Diagnostic::error("rrf::feed-per-rev", "RepRapFirmware has no feed per revolution (G95)")
+                    .at_span(block.span)
+                    .with_help("convert the feeds to mm/min for this spindle speed"));
+            }
+            setup.push_str(match motion.feed.mode {
+                FeedMode::PerMinute => "G94 ",
+                FeedMode::InverseTime => "G93 ",
+                FeedMode::PerRevolution => "G95 ",
+            });
+            self.modes.feed_mode = Some(motion.feed.mode);
+            self.modes.feed = None;
+        }
+        if let MotionKind::Arc(arc) = motion.kind
+            && self.modes.plane != Some(arc.plane)
+        {
+            setup.push_str(arc.plane.gcode());
+            setup.push(' ');
+            self.modes.plane = Some(arc.plane);
+        }
+        if prints_e {
+            let relative = self.fmt.extrusion == Extrusion::Relative;
+            if self.modes.e_relative != Some(relative) {
+                setup.push_str(if relative { "M83 " } else { "M82 " });
+                self.modes.e_relative = Some(relative);
+            }
+        }
+        if !setup.is_empty() {
+            self.line.push_str(setup.trim_end());
+            self.end_line(&[], true)?;
+        }
+        Ok(())
+    }
+
+    fn motion(&mut self, block: &Block, motion: &Motion) -> Result<(), Diagnostic> {
+        let target = match &motion.target {
+            Target::Joints(j) => j,
+            Target::Pose(_) => {
+                return Err(Diagnostic::error(
+                    "back::pose",
+                    "a tool pose reached the backend, which prints joint values",
+                )
+                .at_span(block.span)
+                .with_help("add the `ik` pass to the pipeline for CL input"));
+            }
+        };
+        // Work out the axis words first: the mode line depends on whether E is printed.
+        let mut words: [Option<i64>; AXIS_COUNT] = [None; AXIS_COUNT];
+        let mut any = false;
+        for a in Axis::ALL {
+            let Some(v) = target.get(a) else { continue };
+            let d = self.fmt.decimals.axis(a);
+            if a == Axis::E && self.fmt.extrusion == Extrusion::Relative && !motion.machine_frame {
+                let u = to_units(v, d).ok_or_else(|| too_large('E', v, block))?;
+                let base = match (self.e_units, self.pos.get(Axis::E)) {
+                    (Some(b), _) => b,
+                    (None, Some(p)) => to_units(p, d).unwrap_or(u),
+                    (None, None) => 0,
+                };
+                if u != base {
+                    words[a.index()] = Some(u - base);
+                    any = true;
+                }
+                continue;
+            }
+            let prog = if motion.machine_frame { v } else { v + self.offsets[a.index()] };
+            let u = to_units(prog, d).ok_or_else(|| too_large(a.letter(), prog, block))?;
+            if self.printed[a.index()] != Some(u) || motion.machine_frame {
+                words[a.index()] = Some(u);
+                any = true;
+            }
+        }
+        let is_arc = matches!(motion.kind, MotionKind::Arc(_));
+        if !any && !is_arc {
+            // A move that changes nothing keeps the axes it named.
+            for a in motion.written.iter() {
+                if a == Axis::E && self.fmt.extrusion == Extrusion::Relative {
+                    words[a.index()] = Some(0);
+                    continue;
+                }
+                if let Some(v) = target.get(a) {
+                    let prog = v + self.offsets[a.index()];
+                    words[a.index()] = to_units(prog, self.fmt.decimals.axis(a));
+                }
+            }
+        }
+        let prints_e = words[Axis::E.index()].is_some();
+        self.ensure_modes(motion, prints_e, block)?;
+
+        let code = match motion.kind {
+            MotionKind::Rapid => "G0",
+            MotionKind::Linear => "G1",
+            MotionKind::Arc(a) if a.clockwise => "G2",
+            MotionKind::Arc(_) => "G3",
+        };
+        if motion.machine_frame {
+            self.text("G53");
+        }
+        if !self.fmt.modal_motion || self.modes.motion != Some(code) || motion.machine_frame {
+            self.text(code);
+        }
+        self.modes.motion = Some(code);
+        for a in Axis::ALL {
+            if let Some(u) = words[a.index()] {
+                self.word_units(a.letter(), u, self.fmt.decimals.axis(a));
+            }
+        }
+        if let MotionKind::Arc(arc) = motion.kind {
+            let (u, v, _) = arc.plane.axes();
+            let letters = match arc.plane {
+                Plane::XY => ('I', 'J'),
+                Plane::ZX => ('K', 'I'),
+                Plane::YZ => ('J', 'K'),
+            };
+            let (Some(su), Some(sv)) = (self.pos.get(u), self.pos.get(v)) else {
+                return Err(Diagnostic::error("back::arc-start", "an arc starts from a position that is not known")
+                    .at_span(block.span)
+                    .with_help("move to an absolute position before the arc"));
+            };
+            let d = self.fmt.decimals.linear;
+            // I/J/K, printed in the order I, J, K.
+            let mut offs = [(letters.0, arc.center[u.index()] - su), (letters.1, arc.center[v.index()] - sv)];
+            offs.sort_by_key(|o| o.0);
+            for (l, val) in offs {
+                self.word(l, val, d, block)?;
+            }
+            if arc.extra_turns > 0 {
+                self.text(&format!("P{}", arc.extra_turns + 1));
+            }
+        }
+        if let Some(rate) = motion.feed.rate {
+            let fu = to_units(rate, self.fmt.decimals.feed).ok_or_else(|| too_large('F', rate, block))?;
+            let must = motion.feed.mode == FeedMode::InverseTime && !matches!(motion.kind, MotionKind::Rapid);
+            if self.modes.feed != Some(fu) || must {
+                self.word_units('F', fu, self.fmt.decimals.feed);
+                self.modes.feed = Some(fu);
+            }
+        }
+        if !motion.extra.is_empty() {
+            self.text(&motion.extra);
+        }
+        self.end_line(&block.comments, true)?;
+
+        // Bookkeeping.
+        for a in Axis::ALL {
+            if a == Axis::E && self.fmt.extrusion == Extrusion::Relative {
+                if let Some(du) = words[a.index()] {
+                    let base = self.e_units.unwrap_or(0);
+                    self.e_units = Some(base + du);
+                } else if let Some(v) = target.get(a) {
+                    self.e_units = to_units(v, self.fmt.decimals.extruder).or(self.e_units);
+                }
+                continue;
+            }
+            if let Some(u) = words[a.index()] {
+                self.printed[a.index()] = Some(u);
+            }
+        }
+        self.pos = *target;
+        if motion.machine_frame {
+            for a in motion.written.iter() {
+                self.printed[a.index()] = None;
+            }
+            self.pos.forget(motion.written);
+        }
+        Ok(())
+    }
+
+    fn offset(&mut self, block: &Block, change: &OffsetChange) -> Result<(), Diagnostic> {
+        self.text(change.code.gcode());
+        for a in change.declared.known.iter() {
+            let v = change.declared.values[a.index()];
+            self.word(a.letter(), v, self.fmt.decimals.axis(a), block)?;
+        }
+        if change.declared.known.is_empty() && change.code == crate::ir::OffsetCode::Set {
+            // Keep the statement as written even though it declares nothing.
+        }
+        self.end_line(&block.comments, true)?;
+        self.offsets = change.offsets;
+        for a in Axis::ALL {
+            self.printed[a.index()] = match self.pos.get(a) {
+                Some(v) => to_units(v + self.offsets[a.index()], self.fmt.decimals.axis(a)),
+                None => None,
+            };
+        }
+        for a in change.declared.known.iter() {
+            if self.pos.get(a).is_none() {
+                let v = change.declared.values[a.index()] - change.offsets[a.index()];
+                self.pos.set(a, v);
+                self.printed[a.index()] = to_units(change.declared.values[a.index()], self.fmt.decimals.axis(a));
+                if a == Axis::E {
+                    self.e_units = to_units(v, self.fmt.decimals.extruder);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn forget(&mut self, axes: crate::ir::AxisSet) {
+        for a in axes.iter() {
+            self.printed[a.index()] = None;
+            if a == Axis::E {
+                self.e_units = None;
+            }
+        }
+        self.pos.forget(axes);
+    }
+
+    fn command(&mut self, block: &Block, cmd: &crate::ir::Command, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+        if let Flavor::Rrf { unsupported, .. } = self.flavor
+            && let Some(code) = rrf::unsupported_code(&cmd.text)
+        {
+            let msg = format!("`{code}` is not supported by RepRapFirmware");
+            match unsupported {
+                rrf::Unsupported::Error => {
+                    return Err(Diagnostic::error("rrf::unsupported", msg)
+                        .at_span(block.span)
+                        .with_help("remove it, or set the rrf option `unsupported` to \"comment\" or \"keep\""));
+                }
+                rrf::Unsupported::Comment => {
+                    diags.push(
+                        Diagnostic::warning("rrf::unsupported", msg)
+                            .at_span(block.span)
+                            .with_help("it is written as a comment; set the rrf option `unsupported = \"keep\"` if your macros implement it"),
+                    );
+                    let mut comments = vec![Comment {
+                        text: format!(" {} (not supported by RepRapFirmware)", cmd.text),
+                        style: CommentStyle::Semicolon,
+                    }];
+                    comments.extend(block.comments.iter().cloned());
+                    self.end_line(&comments, false)?;
+                    return Ok(());
+                }
+                rrf::Unsupported::Keep => {}
+            }
+        }
+        if has_axis_word(&cmd.text) {
+            let metric = !cmd.modes.inch;
+            if self.modes.metric != Some(metric) {
+                self.text(if metric { "G21" } else { "G20" });
+                self.modes.metric = Some(metric);
+            }
+            let absolute = !cmd.modes.relative;
+            if self.modes.absolute != Some(absolute) {
+                self.text(if absolute { "G90" } else { "G91" });
+                self.modes.absolute = Some(absolute);
+            }
+        }
+        self.text(&cmd.text);
+        self.end_line(&block.comments, true)?;
+        self.forget(cmd.clobbers);
+        Ok(())
+    }
+
+    /// Prints a line as written, first putting the controller into the modes it was
+    /// written in (at the top level only).
+    fn verbatim(&mut self, block: &Block, v: &crate::ir::Verbatim) -> Result<(), Diagnostic> {
+        if v.reason == crate::ir::VerbatimReason::Delimiter {
+            self.line.push_str(&v.text);
+            return self.end_line(&block.comments, false);
+        }
+        if let Some(m) = v.modes {
+            if self.modes.metric != Some(!m.inch) {
+                self.text(if m.inch { "G20" } else { "G21" });
+            }
+            if self.modes.absolute != Some(!m.relative) {
+                self.text(if m.relative { "G91" } else { "G90" });
+            }
+            // E modes only where this output has used them (LinuxCNC lacks M82/M83).
+            if self.modes.e_relative.is_some_and(|r| r != m.relative_e) {
+                self.text(if m.relative_e { "M83" } else { "M82" });
+            }
+            if !self.line.is_empty() {
+                self.end_line(&[], true)?;
+            }
+        }
+        self.line.push_str(&v.text);
+        self.end_line(&block.comments, false)?;
+        self.forget(v.clobbers);
+        let kept = v.modes.filter(|_| v.keeps_modes);
+        self.modes = Modes {
+            metric: kept.map(|m| !m.inch),
+            absolute: kept.map(|m| !m.relative),
+            e_relative: kept.and(self.modes.e_relative).map(|_| kept.is_some_and(|m| m.relative_e)),
+            plane: if v.keeps_modes { self.modes.plane } else { None },
+            ..Modes::default()
+        };
+        Ok(())
+    }
+
+    pub(crate) fn block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+        match &block.kind {
+            BlockKind::Motion(m) => self.motion(block, m),
+            BlockKind::Dwell { seconds } => {
+                self.text("G4");
+                let letter = self.fmt.dwell_letter;
+                if self.fmt.dwell_milliseconds {
+                    self.word(letter, seconds * 1000.0, 0, block)?;
+                } else {
+                    self.word(letter, *seconds, 3, block)?;
+                }
+                self.end_line(&block.comments, true)
+            }
+            BlockKind::Offset(o) => self.offset(block, o),
+            BlockKind::Command(c) => self.command(block, c, diags),
+            BlockKind::Verbatim(v) => self.verbatim(block, v),
+            BlockKind::Comment => self.end_line(&block.comments, false),
+        }
+    }
+
+    pub(crate) fn flush(&mut self) -> Result<(), Diagnostic> {
+        self.out.flush().map_err(io_error)
+    }
+}
+
+fn has_axis_word(text: &str) -> bool {
+    text.split_whitespace()
+        .any(|w| w.chars().next().and_then(Axis::from_letter).is_some() && w.len() > 1)
+}
+
+fn balanced(text: &str) -> bool {
+    !text.contains(['(', ')'])
+}
+
+fn too_large(letter: char, value: f64, block: &Block) -> Diagnostic {
+    Diagnostic::error("back::number", format!("{letter} = {value} cannot be printed at the configured precision"))
+        .at_span(block.span)
+        .with_help("the value is not finite or too large; check the transformations before the backend")
+}
+
+pub(crate) fn io_error(e: std::io::Error) -> Diagnostic {
+    Diagnostic::error("io::write", format!("cannot write the output: {e}"))
+}
+
+/// A backend made from the emitter and a flavour.
+pub(crate) struct EmitterBackend<W: Write>(pub(crate) Emitter<W>);
+
+impl<W: Write> Backend for EmitterBackend<W> {
+    fn write_block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+        self.0.block(block, diags)
+    }
+    fn finish(&mut self) -> Result<(), Diagnostic> {
+        self.0.flush()
+    }
+}
+
+/// Writes all `blocks` to `backend` and finishes it; errors and warnings are returned
+/// together when any error occurs.
+pub(crate) fn write_all(backend: &mut dyn Backend, blocks: &[Block]) -> Result<(), Vec<Diagnostic>> {
+    let mut diags = Vec::new();
+    for b in blocks {
+        if let Err(d) = backend.write_block(b, &mut diags) {
+            diags.push(d);
+        }
+    }
+    if let Err(d) = backend.finish() {
+        diags.push(d);
+    }
+    if diags.iter().any(Diagnostic::is_error) {
+        Err(diags)
+    } else {
+        Ok(())
+    }
+}

@@ -1,0 +1,109 @@
+//! Fixed-precision number printing without float formatting on the hot path.
+
+/// Rounds `value` to `decimals` places as an integer count of units (`10^-decimals`).
+///
+/// Returns `None` when the value does not fit (non-finite, or beyond ±9e15 units).
+///
+/// ```
+/// use ncpost::back::number::to_units;
+/// assert_eq!(to_units(1.2345, 3), Some(1235));
+/// assert_eq!(to_units(-0.0004, 3), Some(0));
+/// ```
+pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
+    let scaled = (value * POW10[decimals.min(9) as usize]).round();
+    if scaled.is_finite() && scaled.abs() < 9e15 {
+        Some(scaled as i64)
+    } else {
+        None
+    }
+}
+
+const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
+
+/// Appends `units * 10^-decimals` to `out`, trimming trailing zeros when `trim` is set
+/// (`12.500` → `12.5`, `3.000` → `3`).
+///
+/// ```
+/// use ncpost::back::number::write_units;
+/// let mut s = String::new();
+/// write_units(&mut s, -1250, 3, true);
+/// assert_eq!(s, "-1.25");
+/// s.clear();
+/// write_units(&mut s, 5, 3, false);
+/// assert_eq!(s, "0.005");
+/// ```
+pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
+    let decimals = decimals.min(9) as usize;
+    if units < 0 {
+        out.push('-');
+    }
+    let mut digits = itoa::Buffer::new();
+    let digits = digits.format(units.unsigned_abs());
+    if decimals == 0 {
+        out.push_str(digits);
+        return;
+    }
+    let (int_part, frac_part) = if digits.len() > decimals {
+        digits.split_at(digits.len() - decimals)
+    } else {
+        ("0", digits)
+    };
+    out.push_str(int_part);
+    let mut frac = [b'0'; 9];
+    frac[decimals - frac_part.len()..decimals].copy_from_slice(frac_part.as_bytes());
+    let mut len = decimals;
+    if trim {
+        while len > 0 && frac[len - 1] == b'0' {
+            len -= 1;
+        }
+    }
+    if len > 0 {
+        out.push('.');
+        out.extend(frac[..len].iter().map(|&b| b as char));
+    }
+}
+
+/// Prints `value` at `decimals` places (see [`write_units`]); `false` if it does not fit.
+pub fn write_fixed(out: &mut String, value: f64, decimals: u8, trim: bool) -> bool {
+    match to_units(value, decimals) {
+        Some(u) => {
+            write_units(out, u, decimals, trim);
+            true
+        }
+        None => false,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fmt(v: f64, d: u8, trim: bool) -> String {
+        let mut s = String::new();
+        assert!(write_fixed(&mut s, v, d, trim));
+        s
+    }
+
+    #[test]
+    fn prints_fixed() {
+        assert_eq!(fmt(0.0, 3, true), "0");
+        assert_eq!(fmt(-0.0001, 3, true), "0");
+        assert_eq!(fmt(10.0, 3, true), "10");
+        assert_eq!(fmt(10.0, 3, false), "10.000");
+        assert_eq!(fmt(-0.5, 3, true), "-0.5");
+        assert_eq!(fmt(123.4567, 3, true), "123.457");
+        assert_eq!(fmt(2400.0, 0, true), "2400");
+        assert_eq!(fmt(0.00001, 5, true), "0.00001");
+    }
+
+    #[test]
+    fn matches_std_formatting() {
+        for i in -20000..20000 {
+            let v = i as f64 * 0.0137;
+            let ours = fmt(v, 4, false);
+            let std = format!("{:.4}", (v * 1e4).round() / 1e4);
+            let std = if std == "-0.0000" { "0.0000".to_string() } else { std };
+            assert_eq!(ours, std, "{v}");
+        }
+    }
+}

@@ -1,0 +1,138 @@
+//! RepRapFirmware 3.x backend (Duet 3, CNC mode).
+//!
+//! Differences from plain G-code: `;` comments by default (CNC mode accepts one `( )`
+//! pair per line), `G4 S` dwells in seconds, G93 only when the firmware is 3.5 or newer,
+//! and codes RepRapFirmware lacks (G40-G43, G49, G80-G89, M6-M9 without macros) are
+//! written as comments with a warning unless configured otherwise.
+
+use std::io::Write;
+
+use serde::{Deserialize, Serialize};
+
+use super::{Backend, CommentOutput, Decimals, Emitter, EmitterBackend, Extrusion, Flavor, Format};
+use crate::diag::Diagnostic;
+use crate::ir::Block;
+
+/// What to do with a command RepRapFirmware does not implement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Unsupported {
+    /// Write it as a comment and warn.
+    Comment,
+    /// Write it anyway (your `sys/` macros implement it).
+    Keep,
+    /// Stop with an error.
+    Error,
+}
+
+/// RepRapFirmware backend options.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Options {
+    /// Digits after the decimal point.
+    pub decimals: Decimals,
+    /// Drop trailing zeros (`X10` rather than `X10.000`).
+    pub trim_zeros: bool,
+    /// Comment style.
+    pub comments: CommentOutput,
+    /// Number the lines (`N1`, `N2`, ...).
+    pub line_numbers: bool,
+    /// Append `*` checksums (for serial or USB streaming).
+    pub checksums: bool,
+    /// Leave out a repeated G0/G1/G2/G3.
+    pub modal_motion: bool,
+    /// How E is written.
+    pub extrusion: Extrusion,
+    /// The firmware is 3.5 or newer and accepts inverse time feed (G93).
+    pub inverse_time: bool,
+    /// What to do with codes the firmware lacks.
+    pub unsupported: Unsupported,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            decimals: Decimals::default(),
+            trim_zeros: true,
+            comments: CommentOutput::Semicolon,
+            line_numbers: false,
+            checksums: false,
+            modal_motion: false,
+            extrusion: Extrusion::Relative,
+            inverse_time: false,
+            unsupported: Unsupported::Comment,
+        }
+    }
+}
+
+/// Streams RepRapFirmware G-code to `out`.
+///
+/// ```
+/// use ncpost::back::{Backend, rrf};
+/// use ncpost::front::gcode::{parse_str, Options};
+/// let program = parse_str("G0 X10 Y5 ; go\n", &Options::default()).unwrap();
+/// let mut text = Vec::new();
+/// let mut diags = Vec::new();
+/// let mut writer = rrf::Writer::new(&mut text, &rrf::Options::default());
+/// for b in &program.blocks {
+///     writer.write_block(b, &mut diags).unwrap();
+/// }
+/// writer.finish().unwrap();
+/// drop(writer);
+/// assert_eq!(String::from_utf8(text).unwrap(), "G21 G90\nG0 X10 Y5 ; go\n");
+/// ```
+pub struct Writer<W: Write>(EmitterBackend<W>);
+
+impl<W: Write> Writer<W> {
+    /// A writer with `options`.
+    pub fn new(out: W, options: &Options) -> Self {
+        let fmt = Format {
+            decimals: options.decimals,
+            trim_zeros: options.trim_zeros,
+            comments: options.comments,
+            line_numbers: options.line_numbers,
+            checksums: options.checksums,
+            modal_motion: options.modal_motion,
+            extrusion: options.extrusion,
+            dwell_milliseconds: false,
+            dwell_letter: 'S',
+        };
+        let flavor = Flavor::Rrf {
+            inverse_time: options.inverse_time,
+            unsupported: options.unsupported,
+        };
+        Writer(EmitterBackend(Emitter::new(out, flavor, fmt)))
+    }
+}
+
+impl<W: Write> Backend for Writer<W> {
+    fn write_block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+        self.0.write_block(block, diags)
+    }
+    fn finish(&mut self) -> Result<(), Diagnostic> {
+        self.0.finish()
+    }
+}
+
+/// Prints `blocks` as RepRapFirmware G-code.
+pub fn write_string(blocks: &[Block], options: &Options) -> Result<String, Vec<Diagnostic>> {
+    let mut out = Vec::new();
+    super::write_all(&mut Writer::new(&mut out, options), blocks)?;
+    Ok(String::from_utf8_lossy(&out).into_owned())
+}
+
+/// The first code in a command's text that RepRapFirmware does not implement.
+pub(crate) fn unsupported_code(text: &str) -> Option<&str> {
+    text.split_whitespace().find(|w| {
+        let mut chars = w.chars();
+        let letter = chars.next().map(|c| c.to_ascii_uppercase());
+        let Ok(n) = chars.as_str().parse::<f64>() else {
+            return false;
+        };
+        match letter {
+            Some('G') => matches!(n as u32, 40..=43 | 49 | 80..=89) && n.fract() == 0.0,
+            Some('M') => matches!(n as u32, 6..=9) && n.fract() == 0.0,
+            _ => false,
+        }
+    })
+}

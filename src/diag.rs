@@ -1,0 +1,315 @@
+//! The one diagnostic type, its builder methods and its renderings (miette graphical,
+//! plain text, JSON).
+
+use std::fmt;
+
+use crate::ir::Span;
+
+/// How bad a diagnostic is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub enum Severity {
+    /// A report (statistics, summaries); never a problem.
+    Note,
+    /// Information the user should see; the run goes on.
+    Warning,
+    /// The input is wrong; the run fails with exit code 1 and writes no output.
+    Error,
+}
+
+impl Severity {
+    /// `note`, `warning` or `error`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Severity::Note => "note",
+            Severity::Warning => "warning",
+            Severity::Error => "error",
+        }
+    }
+}
+
+/// Where in the source a diagnostic points.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Location {
+    /// 1-based line number.
+    pub line: u32,
+    /// 1-based column, in characters.
+    pub column: u32,
+    /// Length of the marked text, in characters (at least 1).
+    pub len: u32,
+    /// The source line, for the snippet (cut to a readable length).
+    pub source_line: String,
+}
+
+/// A message about the input, with its place, a label for the marked text and help.
+///
+/// ```
+/// use ncpost::diag::{Diagnostic, Severity};
+/// let d = Diagnostic::error("gcode::bad-word", "letter without a number")
+///     .at_line(3, "G1 X Y10", 4, 1)
+///     .with_label("`X` needs a value")
+///     .with_help("write X0 or remove the letter");
+/// assert_eq!(d.severity, Severity::Error);
+/// assert_eq!(d.location.as_ref().unwrap().column, 4);
+/// ```
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Diagnostic {
+    /// Error or warning.
+    pub severity: Severity,
+    /// Stable code, `area::kind`.
+    pub code: &'static str,
+    /// One-line message.
+    pub message: String,
+    /// Place in the source, when there is one.
+    pub location: Option<Location>,
+    /// Text under the marked span.
+    pub label: Option<String>,
+    /// What to do about it.
+    pub help: Option<String>,
+}
+
+/// Longest source line kept in a diagnostic; longer lines are cut around the mark.
+const SNIPPET_MAX: usize = 160;
+
+impl Diagnostic {
+    /// A new error.
+    pub fn error(code: &'static str, message: impl Into<String>) -> Self {
+        Self::new(Severity::Error, code, message)
+    }
+
+    /// A new note (a report, not a problem).
+    pub fn note(code: &'static str, message: impl Into<String>) -> Self {
+        Self::new(Severity::Note, code, message)
+    }
+
+    /// A new warning.
+    pub fn warning(code: &'static str, message: impl Into<String>) -> Self {
+        Self::new(Severity::Warning, code, message)
+    }
+
+    fn new(severity: Severity, code: &'static str, message: impl Into<String>) -> Self {
+        Diagnostic {
+            severity,
+            code,
+            message: message.into(),
+            location: None,
+            label: None,
+            help: None,
+        }
+    }
+
+    /// Points at `len` characters from 1-based `column` of line `line` whose text is
+    /// `source_line`.
+    pub fn at_line(mut self, line: u32, source_line: &str, column: u32, len: u32) -> Self {
+        let column = column.max(1);
+        let (text, column) = snippet(source_line, column as usize);
+        self.location = Some(Location {
+            line,
+            column: column as u32,
+            len: len.max(1),
+            source_line: text,
+        });
+        self
+    }
+
+    /// Points at a byte range `start..end` of `source_line` (line number `line`).
+    pub fn at_bytes(self, line: u32, source_line: &str, start: usize, end: usize) -> Self {
+        let start = floor_char(source_line, start.min(source_line.len()));
+        let end = floor_char(source_line, end.clamp(start, source_line.len()));
+        let column = source_line[..start].chars().count() as u32 + 1;
+        let len = source_line[start..end].chars().count() as u32;
+        self.at_line(line, source_line, column, len)
+    }
+
+    /// Points at a whole block's line (column 1), without a snippet.
+    pub fn at_span(mut self, span: Span) -> Self {
+        self.location = Some(Location {
+            line: span.line,
+            column: 1,
+            len: 1,
+            source_line: String::new(),
+        });
+        self
+    }
+
+    /// Sets the label under the marked text.
+    pub fn with_label(mut self, label: impl Into<String>) -> Self {
+        self.label = Some(label.into());
+        self
+    }
+
+    /// Sets the help text.
+    pub fn with_help(mut self, help: impl Into<String>) -> Self {
+        self.help = Some(help.into());
+        self
+    }
+
+    /// Whether this is an error.
+    pub fn is_error(&self) -> bool {
+        self.severity == Severity::Error
+    }
+
+    /// Renders as text: graphical with colour when `fancy`, otherwise plain ASCII without
+    /// colour at width 80 (the form snapshots use). `file` names the input.
+    pub fn render(&self, file: &str, fancy: bool) -> String {
+        use miette::{GraphicalReportHandler, GraphicalTheme};
+        let theme = if fancy {
+            GraphicalTheme::unicode()
+        } else {
+            GraphicalTheme::none()
+        };
+        let handler = GraphicalReportHandler::new_themed(theme)
+            .with_width(80)
+            .with_links(false);
+        let report = Report { diag: self, file };
+        let mut out = String::new();
+        if handler.render_report(&mut out, &report).is_err() {
+            out = self.to_string();
+        }
+        out
+    }
+
+    /// One JSON object (no trailing newline), for `--message-format json`.
+    pub fn to_json(&self, file: &str) -> String {
+        let loc = self.location.as_ref();
+        serde_json::json!({
+            "severity": self.severity.name(),
+            "code": self.code,
+            "message": self.message,
+            "file": file,
+            "line": loc.map(|l| l.line),
+            "column": loc.map(|l| l.column),
+            "label": self.label,
+            "help": self.help,
+        })
+        .to_string()
+    }
+}
+
+impl fmt::Display for Diagnostic {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}[{}]", self.severity.name(), self.code)?;
+        if let Some(l) = &self.location {
+            write!(f, " line {}:{}", l.line, l.column)?;
+        }
+        write!(f, ": {}", self.message)?;
+        if let Some(h) = &self.help {
+            write!(f, " (help: {h})")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Diagnostic {}
+
+fn floor_char(s: &str, mut i: usize) -> usize {
+    while !s.is_char_boundary(i) {
+        i -= 1;
+    }
+    i
+}
+
+/// Cuts a long line to a window around `column`; returns the text and the new column.
+fn snippet(line: &str, column: usize) -> (String, usize) {
+    let count = line.chars().count();
+    if count <= SNIPPET_MAX {
+        return (line.to_string(), column);
+    }
+    let start = column.saturating_sub(SNIPPET_MAX / 2).min(count - SNIPPET_MAX);
+    let text: String = line.chars().skip(start).take(SNIPPET_MAX).collect();
+    (text, column - start)
+}
+
+/// Adapter that lets miette draw one diagnostic with its one-line snippet.
+struct Report<'a> {
+    diag: &'a Diagnostic,
+    file: &'a str,
+}
+
+impl fmt::Debug for Report<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Debug::fmt(self.diag, f)
+    }
+}
+
+impl fmt::Display for Report<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.diag.message)?;
+        if let Some(l) = &self.diag.location
+            && l.source_line.is_empty()
+        {
+            write!(f, " ({}:{})", self.file, l.line)?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for Report<'_> {}
+
+impl miette::Diagnostic for Report<'_> {
+    fn code<'b>(&'b self) -> Option<Box<dyn fmt::Display + 'b>> {
+        Some(Box::new(self.diag.code))
+    }
+
+    fn severity(&self) -> Option<miette::Severity> {
+        Some(match self.diag.severity {
+            Severity::Error => miette::Severity::Error,
+            Severity::Warning => miette::Severity::Warning,
+            Severity::Note => miette::Severity::Advice,
+        })
+    }
+
+    fn help<'b>(&'b self) -> Option<Box<dyn fmt::Display + 'b>> {
+        self.diag
+            .help
+            .as_ref()
+            .map(|h| Box::new(h) as Box<dyn fmt::Display>)
+    }
+
+    fn source_code(&self) -> Option<&dyn miette::SourceCode> {
+        match &self.diag.location {
+            Some(l) if !l.source_line.is_empty() => Some(self as &dyn miette::SourceCode),
+            _ => None,
+        }
+    }
+
+    fn labels(&self) -> Option<Box<dyn Iterator<Item = miette::LabeledSpan> + '_>> {
+        let l = self.diag.location.as_ref()?;
+        if l.source_line.is_empty() {
+            return None;
+        }
+        let start = char_to_byte(&l.source_line, l.column as usize - 1);
+        let end = char_to_byte(&l.source_line, (l.column + l.len) as usize - 1);
+        let span = miette::LabeledSpan::new(self.diag.label.clone(), start, end.saturating_sub(start));
+        Some(Box::new(std::iter::once(span)))
+    }
+}
+
+fn char_to_byte(s: &str, chars: usize) -> usize {
+    s.char_indices().nth(chars).map_or(s.len(), |(i, _)| i)
+}
+
+impl miette::SourceCode for Report<'_> {
+    fn read_span<'b>(
+        &'b self,
+        span: &miette::SourceSpan,
+        _context_lines_before: usize,
+        _context_lines_after: usize,
+    ) -> Result<Box<dyn miette::SpanContents<'b> + 'b>, miette::MietteError> {
+        let l = self
+            .diag
+            .location
+            .as_ref()
+            .ok_or(miette::MietteError::OutOfBounds)?;
+        if span.offset() > l.source_line.len() {
+            return Err(miette::MietteError::OutOfBounds);
+        }
+        Ok(Box::new(miette::MietteSpanContents::new_named(
+            self.file.to_string(),
+            l.source_line.as_bytes(),
+            (0, l.source_line.len()).into(),
+            l.line.saturating_sub(1) as usize,
+            0,
+            1,
+        )))
+    }
+}

@@ -1,0 +1,143 @@
+//! Logos lexer for one line of G-code.
+//!
+//! The lexer never fails: characters it has no token for become [`Tok::Other`], so the
+//! caller can decide whether the line is an expression it passes through or an error.
+
+use logos::Logos;
+
+/// One token of a G-code line. Slices borrow from the line.
+#[derive(Logos, Debug, Clone, Copy, PartialEq, Eq)]
+#[logos(skip r"[ \t\r\x0c\x0b]+")]
+pub enum Tok<'a> {
+    /// A letter and its number, e.g. `G1`, `x-.5`, `G 38.2` (RS274 allows blanks inside).
+    #[regex(r"[A-Za-z][ \t]*[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)", |lex| lex.slice())]
+    Word(&'a str),
+    /// A letter with no number after it (`G28 X Y`).
+    #[regex(r"[A-Za-z]", |lex| lex.slice())]
+    Letter(&'a str),
+    /// Two or more letters: a dialect keyword (`if`, `DEF`, `EQ`) or a typo.
+    #[regex(r"[A-Za-z][A-Za-z_]+", |lex| lex.slice())]
+    Ident(&'a str),
+    /// A number with no letter before it.
+    #[regex(r"[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)", |lex| lex.slice())]
+    Number(&'a str),
+    /// A closed parenthesised comment, with its parentheses (nesting allowed).
+    Comment(&'a str),
+    /// A parenthesised comment that runs to the end of the line.
+    OpenComment(&'a str),
+    /// `;` and the rest of the line.
+    #[regex(r";[^\n]*", |lex| lex.slice(), allow_greedy = true)]
+    LineComment(&'a str),
+    /// A RepRapFirmware quoted string, `""` standing for one quote.
+    #[regex(r#""([^"]|"")*""#, |lex| lex.slice())]
+    Str(&'a str),
+    /// `*` and the checksum digits.
+    #[regex(r"\*[0-9]+", |lex| lex.slice())]
+    Checksum(&'a str),
+    /// Block delete `/`, optionally with a level digit.
+    #[regex(r"/[0-9]?", |lex| lex.slice())]
+    Slash(&'a str),
+    /// The tape delimiter `%`.
+    #[token("%")]
+    Percent,
+    /// Start of a parenthesised comment; replaced by `Comment` or `OpenComment`.
+    #[token("(")]
+    OpenParen,
+    /// Any other character: expression syntax, parameters, stray punctuation.
+    Other(&'a str),
+}
+
+/// A token with its byte range in the line.
+pub type Spanned<'a> = (usize, Tok<'a>, usize);
+
+/// Splits `line` (without its line terminator) into `out`, which is cleared first.
+///
+/// ```
+/// use ncpost::front::gcode::lexer::{lex_line, Tok};
+/// let mut toks = Vec::new();
+/// lex_line("G1 X10 (move) ; done", &mut toks);
+/// assert_eq!(toks[1].1, Tok::Word("X10"));
+/// assert_eq!(toks[2].1, Tok::Comment("(move)"));
+/// ```
+pub fn lex_line<'a>(line: &'a str, out: &mut Vec<Spanned<'a>>) {
+    out.clear();
+    let mut lex = Tok::lexer(line);
+    while let Some(tok) = lex.next() {
+        let span = lex.span();
+        let tok = match tok {
+            Ok(Tok::OpenParen) => {
+                let rest = lex.remainder();
+                match closing_paren(rest) {
+                    Some(len) => {
+                        lex.bump(len);
+                        Tok::Comment(&line[span.start..span.end + len])
+                    }
+                    None => {
+                        lex.bump(rest.len());
+                        Tok::OpenComment(&line[span.start..])
+                    }
+                }
+            }
+            Ok(tok) => tok,
+            Err(()) => Tok::Other(lex.slice()),
+        };
+        let end = span.start.max(lex.span().end);
+        out.push((span.start, tok, end));
+    }
+}
+
+/// Length up to and including the `)` that closes an already opened comment.
+fn closing_paren(rest: &str) -> Option<usize> {
+    let mut depth = 1usize;
+    for (i, b) in rest.bytes().enumerate() {
+        match b {
+            b'(' => depth += 1,
+            b')' => {
+                depth -= 1;
+                if depth == 0 {
+                    return Some(i + 1);
+                }
+            }
+            _ => {}
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn toks(s: &str) -> Vec<Tok<'_>> {
+        let mut v = Vec::new();
+        lex_line(s, &mut v);
+        v.into_iter().map(|t| t.1).collect()
+    }
+
+    #[test]
+    fn compact_words_split() {
+        assert_eq!(
+            toks("G1Y-2X179F2400"),
+            vec![Tok::Word("G1"), Tok::Word("Y-2"), Tok::Word("X179"), Tok::Word("F2400")]
+        );
+    }
+
+    #[test]
+    fn nested_and_open_comments() {
+        assert_eq!(toks("((a) b)"), vec![Tok::Comment("((a) b)")]);
+        assert_eq!(toks("G0 ( open"), vec![Tok::Word("G0"), Tok::OpenComment("( open")]);
+    }
+
+    #[test]
+    fn quoted_string_with_escapes() {
+        assert_eq!(
+            toks(r#"M587 S"A;""B""#),
+            vec![Tok::Word("M587"), Tok::Letter("S"), Tok::Str(r#""A;""B""#)]
+        );
+    }
+
+    #[test]
+    fn unknown_characters_become_other() {
+        assert_eq!(toks("#1=2"), vec![Tok::Other("#"), Tok::Number("1"), Tok::Other("="), Tok::Number("2")]);
+    }
+}

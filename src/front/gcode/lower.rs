@@ -1,0 +1,1489 @@
+//! Lowering of G-code lines to IR blocks, with the modal state of the controller.
+
+use nalgebra::Vector3;
+
+use super::Options;
+use super::ast::{Item, Line};
+use super::lexer::{Spanned, Tok, lex_line};
+use crate::diag::Diagnostic;
+use crate::ir::{
+    Arc, Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode,
+    Joints, Motion, MotionKind, OffsetChange, OffsetCode, Plane, Span, Target, Verbatim,
+    VerbatimReason, WrittenModes, AXIS_COUNT,
+};
+
+const MM_PER_INCH: f64 = 25.4;
+
+/// RepRapFirmware meta-command keywords that start a line.
+const META_KEYWORDS: &[&str] = &[
+    "if", "elif", "else", "while", "break", "continue", "abort", "var", "global", "set",
+    "echo", "skip",
+];
+/// Meta keywords that open an indented block.
+const META_BLOCK_KEYWORDS: &[&str] = &["if", "elif", "else", "while"];
+
+/// The motion mode in force (modal group 1).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum MotionMode {
+    None,
+    Rapid,
+    Linear,
+    Arc { clockwise: bool },
+    /// A mode the IR does not model (canned cycles, splines, threading).
+    Unsupported,
+}
+
+/// A G or M code as (major, minor): `G38.2` is (38, 2), `G1` is (1, 0).
+type Code = (u32, u32);
+
+fn parse_code(number: &str) -> Option<Code> {
+    let number = number.strip_prefix('+').unwrap_or(number);
+    let (major, minor) = match number.split_once('.') {
+        Some((a, b)) => (a, b.trim_end_matches('0')),
+        None => (number, ""),
+    };
+    let major = if major.is_empty() { 0 } else { major.parse().ok()? };
+    let minor = if minor.is_empty() { 0 } else { minor.parse().ok()? };
+    Some((major, minor))
+}
+
+/// A word of a plain block.
+#[derive(Debug, Clone, Copy)]
+struct Word<'a> {
+    letter: char,
+    number: &'a str,
+    value: f64,
+    start: usize,
+    end: usize,
+    /// The source slice, for pass-through text.
+    text: &'a str,
+}
+
+/// Which G-code modal group a code belongs to, for the conflict check.
+fn g_group(code: Code) -> Option<&'static str> {
+    Some(match code {
+        (80, 0) => "canned cycle cancel",
+        (0 | 1 | 2 | 3 | 33 | 73 | 76 | 81..=89, 0) | (5, _) | (38, _) | (33, 1) => "motion",
+        (17..=19, _) => "plane",
+        (20 | 21, 0) => "units",
+        (90 | 91, 0) => "distance",
+        (90 | 91, 1) => "arc distance",
+        (93..=95, 0) => "feed mode",
+        (54..=59, _) => "coordinate system",
+        (40..=42, _) => "cutter compensation",
+        (43 | 49, _) => "tool length offset",
+        (4 | 10 | 28 | 30 | 53 | 92, _) => "non-modal",
+        _ => return None,
+    })
+}
+
+/// G codes that take axis words without moving along them as a G1 would: homing, probing,
+/// setting offsets, direct moves. They pass through as commands.
+fn g_uses_axes(code: Code) -> bool {
+    matches!(
+        code,
+        (6 | 10 | 28 | 29 | 30 | 31 | 52 | 161 | 162, _) | (38, _) | (43, 4 | 5)
+    )
+}
+
+/// Axes whose position is unknown after a pass-through command, judged from its codes.
+fn clobbers(g: &[Code], m: &[Code], named: AxisSet) -> AxisSet {
+    let mut set = AxisSet::EMPTY;
+    for &code in g {
+        match code {
+            // Homing and parking: the named axes, or all.
+            (28 | 30 | 161 | 162 | 6 | 29, 0) => {
+                set = set.union(if named.is_empty() { AxisSet::ALL } else { named })
+            }
+            // Probing stops somewhere along the named axes.
+            (31, 0) | (38, _) => set = set.union(named),
+            // Modal settings that do not move.
+            (17..=21 | 40..=43 | 49 | 54..=59 | 61 | 64 | 80 | 90 | 91 | 93..=99, _)
+            | (10 | 28 | 30, 1) => {}
+            // Probing, macros, coordinate rotation and anything unknown may move or
+            // re-define coordinates.
+            _ => set = AxisSet::ALL,
+        }
+    }
+    for &code in m {
+        if matches!(code, (98 | 99, 0)) {
+            set = AxisSet::ALL;
+        }
+    }
+    set
+}
+
+/// Lowers lines, keeping the controller's modal state.
+pub(super) struct Lowerer {
+    pub(super) options: Options,
+    motion: MotionMode,
+    plane: Plane,
+    inch: bool,
+    relative: bool,
+    relative_e: bool,
+    arc_center_absolute: bool,
+    feed_mode: FeedMode,
+    feed: Option<f64>,
+    /// Current position, IR frame.
+    pos: Joints,
+    /// G92 offsets: program = IR + offset.
+    offsets: [f64; AXIS_COUNT],
+    suspended: Option<[f64; AXIS_COUNT]>,
+    /// Axes already warned about as assumed to be 0.
+    assumed: AxisSet,
+    /// Open o-word blocks: (label, keyword).
+    oword_stack: Vec<(String, String)>,
+    /// Indentation of an open RepRapFirmware meta block.
+    meta_indent: Option<usize>,
+    /// Inside a Fanuc subprogram body (until M99).
+    in_subprogram: bool,
+    /// A block of the main program has been seen.
+    program_started: bool,
+}
+
+impl Lowerer {
+    pub(super) fn new(options: Options) -> Self {
+        Lowerer {
+            options,
+            motion: MotionMode::None,
+            plane: Plane::XY,
+            inch: false,
+            relative: false,
+            relative_e: false,
+            arc_center_absolute: false,
+            feed_mode: FeedMode::PerMinute,
+            feed: None,
+            pos: Joints::default(),
+            offsets: [0.0; AXIS_COUNT],
+            suspended: None,
+            assumed: AxisSet::EMPTY,
+            oword_stack: Vec::new(),
+            meta_indent: None,
+            in_subprogram: false,
+            program_started: false,
+        }
+    }
+
+    pub(super) fn finish(&mut self, diags: &mut Vec<Diagnostic>) {
+        if let Some((label, kw)) = self.oword_stack.last() {
+            diags.push(
+                Diagnostic::warning(
+                    "gcode::open-control-flow",
+                    format!("o{label} {kw} is not closed at the end of the input"),
+                )
+                .with_help("every o-word sub/if/while/repeat needs its end word"),
+            );
+        }
+    }
+
+    fn verbatim(
+        &mut self,
+        text: &str,
+        span: Span,
+        reason: VerbatimReason,
+        clobbers: AxisSet,
+        placement: Placement,
+    ) -> Block {
+        // The modes are those in force before the line (it was written in them).
+        let (modes, keeps_modes) = match placement {
+            Placement::Inside => (None, false),
+            Placement::TopLevel { keeps_modes } => (Some(self.modes()), keeps_modes),
+        };
+        self.pos.forget(clobbers);
+        Block::new(
+            span,
+            BlockKind::Verbatim(Verbatim {
+                text: text.to_string(),
+                reason,
+                clobbers,
+                modes,
+                keeps_modes,
+            }),
+        )
+    }
+
+    fn modes(&self) -> WrittenModes {
+        WrittenModes {
+            inch: self.inch,
+            relative: self.relative,
+            relative_e: self.relative_e,
+        }
+    }
+
+    /// Lowers one line; blocks go to `out`, diagnostics to `diags`.
+    pub(super) fn line(
+        &mut self,
+        text: &str,
+        span: Span,
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) {
+        let trimmed = text.trim();
+        if trimmed.is_empty() {
+            return;
+        }
+        let indent = text.len() - text.trim_start().len();
+        let line_no = span.line;
+
+        // A RepRapFirmware meta block: its body is the lines indented deeper.
+        if let Some(k) = self.meta_indent {
+            if indent > k {
+                out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, AxisSet::ALL, Placement::Inside));
+                return;
+            }
+            self.meta_indent = None;
+        }
+        if self.in_subprogram {
+            out.push(self.verbatim(text, span, VerbatimReason::Subprogram, AxisSet::ALL, Placement::Inside));
+            if contains_m99(text) {
+                self.in_subprogram = false;
+            }
+            return;
+        }
+
+        let mut toks: Vec<Spanned<'_>> = Vec::with_capacity(16);
+        lex_line(text, &mut toks);
+
+        if let Some(Tok::Ident(word)) = toks.first().map(|t| t.1) {
+            let lower = word.to_ascii_lowercase();
+            if META_KEYWORDS.contains(&lower.as_str()) {
+                if META_BLOCK_KEYWORDS.contains(&lower.as_str()) {
+                    self.meta_indent = Some(indent);
+                }
+                diags.push(
+                    Diagnostic::warning(
+                        "gcode::meta-command",
+                        format!("RepRapFirmware meta command `{lower}` is not evaluated"),
+                    )
+                    .at_bytes(line_no, text, toks[0].0, toks[0].2)
+                    .with_label("passes through unchanged")
+                    .with_help(
+                        "the line (and the block indented below it) is copied as written; \
+                         positions after it are treated as unknown",
+                    ),
+                );
+                out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, AxisSet::ALL, Placement::TopLevel { keeps_modes: false }));
+                return;
+            }
+        }
+
+        if let Some(kw) = oword_keyword(&toks) {
+            self.oword(text, span, &toks, kw, out, diags);
+            return;
+        }
+        if !self.oword_stack.is_empty() {
+            out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, AxisSet::ALL, Placement::Inside));
+            return;
+        }
+
+        // Fanuc program numbers: at the top a label, after the main program a subprogram.
+        if let Some(&(s, Tok::Word(w), e)) = toks.first()
+            && w.starts_with(['O', 'o'])
+        {
+            if self.program_started {
+                self.in_subprogram = !contains_m99(text);
+                diags.push(
+                    Diagnostic::warning(
+                        "gcode::subprogram",
+                        format!("subprogram {} passes through unchanged", w.to_ascii_uppercase()),
+                    )
+                    .at_bytes(line_no, text, s, e)
+                    .with_label("body copied as written up to its M99")
+                    .with_help("the expand-subprograms pass inlines M98 calls when it is available"),
+                );
+                out.push(self.verbatim(text, span, VerbatimReason::Subprogram, AxisSet::ALL, Placement::Inside));
+            } else {
+                out.push(self.verbatim(text, span, VerbatimReason::Delimiter, AxisSet::EMPTY, Placement::Inside));
+            }
+            return;
+        }
+
+        if let Some(reason) = self.unplain(text, line_no, &toks, diags) {
+            match reason {
+                Unplain::Command => {
+                    self.program_started = true;
+                    let clob = self.command_clobbers(&toks);
+                    self.pos.forget(clob);
+                    out.push(Block::new(
+                        span,
+                        BlockKind::Command(Command {
+                            text: text.trim().to_string(),
+                            modes: WrittenModes::default(),
+                            clobbers: clob,
+                        }),
+                    ));
+                }
+                Unplain::Unevaluated => {
+                    let keeps_modes = !self.apply_plain_modes(&toks);
+                    out.push(self.verbatim(text, span, VerbatimReason::Unevaluated, AxisSet::ALL, Placement::TopLevel { keeps_modes }));
+                }
+                Unplain::Error => {}
+            }
+            return;
+        }
+
+        let parsed = super::grammar::LineParser::new()
+            .parse(toks.iter().copied().map(Ok::<_, ()>));
+        let parsed = match parsed {
+            Ok(l) => l,
+            Err(err) => {
+                diags.push(parse_error(line_no, text, err));
+                return;
+            }
+        };
+        self.block(text, span, parsed, out, diags);
+    }
+
+    /// Handles an o-word line (LinuxCNC control flow).
+    fn oword(
+        &mut self,
+        text: &str,
+        span: Span,
+        toks: &[Spanned<'_>],
+        keyword: &str,
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) {
+        let label = oword_label(text, toks);
+        let kw = keyword.to_ascii_lowercase();
+        let top_level = self.oword_stack.is_empty();
+        let placement = if top_level {
+            Placement::TopLevel { keeps_modes: false }
+        } else {
+            Placement::Inside
+        };
+        match kw.as_str() {
+            "sub" | "if" | "repeat" | "do" => self.oword_stack.push((label, kw.clone())),
+            "while" => {
+                let closes_do = self
+                    .oword_stack
+                    .last()
+                    .is_some_and(|(l, k)| *l == label && k == "do");
+                if closes_do {
+                    self.oword_stack.pop();
+                } else {
+                    self.oword_stack.push((label, kw.clone()));
+                }
+            }
+            "endsub" | "endif" | "endwhile" | "endrepeat" => {
+                self.oword_stack.pop();
+            }
+            _ => {}
+        }
+        if top_level {
+            diags.push(
+                Diagnostic::warning(
+                    "gcode::control-flow",
+                    format!("o-word `{kw}` is not evaluated"),
+                )
+                .at_bytes(span.line, text, toks[0].0, toks.last().map_or(toks[0].2, |t| t.2))
+                .with_label("passes through unchanged")
+                .with_help(
+                    "o-word subroutines, loops and conditions are copied as written, with \
+                     their bodies; positions after them are treated as unknown",
+                ),
+            );
+        }
+        out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, AxisSet::ALL, placement));
+    }
+
+    /// Decides whether a line is outside the plain block grammar; reports why.
+    fn unplain(
+        &mut self,
+        text: &str,
+        line_no: u32,
+        toks: &[Spanned<'_>],
+        diags: &mut Vec<Diagnostic>,
+    ) -> Option<Unplain> {
+        let mut expression = None;
+        let mut odd = None;
+        for (i, &(s, tok, e)) in toks.iter().enumerate() {
+            match tok {
+                Tok::Other(c) if "#[]{}=<>@^".contains(c) => {
+                    expression.get_or_insert((s, e));
+                }
+                Tok::Other(_) | Tok::Ident(_) | Tok::Number(_) => {
+                    odd.get_or_insert((s, e, tok));
+                }
+                Tok::Slash(_) if i > 0 => {
+                    odd.get_or_insert((s, e, tok));
+                }
+                Tok::OpenComment(_) if i > 0 => {}
+                _ => {}
+            }
+        }
+        let first_letter = toks.iter().find_map(|t| match t.1 {
+            Tok::Word(w) | Tok::Letter(w) => w.chars().next().map(|c| c.to_ascii_uppercase()),
+            _ => None,
+        });
+        let command_line = matches!(first_letter, Some('M' | 'T'));
+        let has_string = toks.iter().any(|t| matches!(t.1, Tok::Str(_)));
+        if expression.is_none() && odd.is_none() && (!has_string || command_line) {
+            return if has_string { Some(Unplain::Command) } else { None };
+        }
+        // NaN and infinity are never numbers in G-code, whatever the dialect.
+        if let Some((s, e, Tok::Ident(w))) = odd {
+            let tail = w[1..].to_ascii_lowercase();
+            if matches!(tail.as_str(), "nan" | "inf" | "infinity") {
+                diags.push(
+                    Diagnostic::error(
+                        "gcode::not-a-number",
+                        format!("`{}` is not a number G-code accepts", &w[1..]),
+                    )
+                    .at_bytes(line_no, text, s + 1, e)
+                    .with_label("not a finite number")
+                    .with_help(format!("give {} a finite decimal value", &w[..1])),
+                );
+                return Some(Unplain::Error);
+            }
+        }
+        if command_line && expression.is_none() {
+            return Some(Unplain::Command);
+        }
+        let (s, e) = expression.unwrap_or_else(|| odd.map(|o| (o.0, o.1)).unwrap_or((0, 0)));
+        diags.push(
+            Diagnostic::warning(
+                "gcode::unevaluated",
+                "line is not plain G-code: parameters, expressions or dialect syntax are not evaluated",
+            )
+            .at_bytes(line_no, text, s, e)
+            .with_label("not evaluated")
+            .with_help("the line is copied as written; positions after it are treated as unknown"),
+        );
+        Some(Unplain::Unevaluated)
+    }
+
+    /// Applies modal words of a line that is otherwise passed through, so that following
+    /// plain lines are read in the modes the controller will be in.
+    fn apply_plain_modes(&mut self, toks: &[Spanned<'_>]) -> bool {
+        let before = (self.modes(), self.plane);
+        for t in toks {
+            if let Tok::Word(w) = t.1 {
+                let (letter, number) = split_word(w);
+                let Some(code) = parse_code(&number) else {
+                    continue;
+                };
+                match (letter, code) {
+                    ('G', (90, 0)) => self.relative = false,
+                    ('G', (91, 0)) => self.relative = true,
+                    ('G', (20, 0)) => self.inch = true,
+                    ('G', (21, 0)) => self.inch = false,
+                    ('G', (17, 0)) => self.plane = Plane::XY,
+                    ('G', (18, 0)) => self.plane = Plane::ZX,
+                    ('G', (19, 0)) => self.plane = Plane::YZ,
+                    ('M', (82, 0)) => self.relative_e = false,
+                    ('M', (83, 0)) => self.relative_e = true,
+                    _ => {}
+                }
+            }
+        }
+        self.motion = MotionMode::None;
+        before != (self.modes(), self.plane)
+    }
+
+    fn command_clobbers(&self, toks: &[Spanned<'_>]) -> AxisSet {
+        let mut g = Vec::new();
+        let mut m = Vec::new();
+        let mut named = AxisSet::EMPTY;
+        for t in toks {
+            if let Tok::Word(w) | Tok::Letter(w) = t.1 {
+                let (letter, number) = split_word(w);
+                match letter {
+                    'G' => g.extend(parse_code(&number)),
+                    'M' => m.extend(parse_code(&number)),
+                    l => {
+                        if let Some(a) = Axis::from_letter(l) {
+                            named.insert(a);
+                        }
+                    }
+                }
+            }
+        }
+        clobbers(&g, &m, named)
+    }
+
+    /// Lowers a plain block.
+    fn block(
+        &mut self,
+        text: &str,
+        span: Span,
+        line: Line<'_>,
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) {
+        let line_no = span.line;
+        let err = |code: &'static str, msg: String, s: usize, e: usize| {
+            Diagnostic::error(code, msg).at_bytes(line_no, text, s, e)
+        };
+
+        if let Some((at, cs)) = line.checksum {
+            let expected: u32 = text.as_bytes()[..at].iter().fold(0u32, |a, b| a ^ *b as u32);
+            let given: Option<u32> = cs[1..].parse().ok();
+            if given != Some(expected) {
+                diags.push(
+                    err(
+                        "gcode::checksum",
+                        format!("checksum {} does not match the line (expected *{expected})", cs),
+                        at,
+                        at + cs.len(),
+                    )
+                    .with_label("wrong checksum")
+                    .with_help("the line was changed or corrupted after its checksum was computed"),
+                );
+                return;
+            }
+        }
+
+        let mut comments = Vec::new();
+        let mut words: Vec<Word<'_>> = Vec::with_capacity(line.items.len());
+        let mut bare: Vec<(usize, &str)> = Vec::new();
+        let mut percent = false;
+        for item in &line.items {
+            match *item {
+                Item::Word(s, w) => {
+                    let (letter, number) = split_word(w);
+                    let value: f64 = match number.parse() {
+                        Ok(v) => v,
+                        Err(_) => f64::NAN,
+                    };
+                    if !value.is_finite() || value.abs() > 1e12 {
+                        diags.push(
+                            err(
+                                "gcode::number-range",
+                                format!("`{w}`: the number is out of range"),
+                                s,
+                                s + w.len(),
+                            )
+                            .with_label("too large")
+                            .with_help("G-code values must be finite and below 1e12"),
+                        );
+                        return;
+                    }
+                    // `X1e400` reads as X1 then E400: almost surely an exponent typo.
+                    if letter == 'E'
+                        && w.starts_with('e')
+                        && let Some(prev) = words.last()
+                        && prev.end == s
+                    {
+                        diags.push(
+                            err(
+                                "gcode::exponent",
+                                format!(
+                                    "`{}{w}` looks like a number in exponent notation, which G-code does not have",
+                                    prev.text
+                                ),
+                                prev.start,
+                                s + w.len(),
+                            )
+                            .with_label("read as two words")
+                            .with_help(
+                                "write the value in plain decimals; for an extruder word, \
+                                 put a space before it or write it in capitals",
+                            ),
+                        );
+                        return;
+                    }
+                    words.push(Word {
+                        letter,
+                        number: number_slice(w),
+                        value,
+                        start: s,
+                        end: s + w.len(),
+                        text: w,
+                    });
+                }
+                Item::Letter(s, l) => bare.push((s, l)),
+                Item::Comment(_, c) => comments.push(Comment {
+                    text: c[1..c.len() - 1].to_string(),
+                    style: CommentStyle::Paren,
+                }),
+                Item::Str(s, _) => {
+                    diags.push(err("gcode::string", "a quoted string needs an M command".into(), s, s + 1));
+                    return;
+                }
+                Item::Percent(_) => percent = true,
+            }
+        }
+        if let Some((at, c)) = line.tail {
+            if let Some(rest) = c.strip_prefix(';') {
+                comments.push(Comment {
+                    text: rest.to_string(),
+                    style: CommentStyle::Semicolon,
+                });
+            } else if words.is_empty() && bare.is_empty() {
+                diags.push(
+                    Diagnostic::warning("gcode::unterminated-comment", "comment is not closed")
+                        .at_bytes(line_no, text, at, text.len())
+                        .with_label("runs to the end of the line")
+                        .with_help("add `)`; it is kept as a comment"),
+                );
+                comments.push(Comment {
+                    text: c[1..].to_string(),
+                    style: CommentStyle::Paren,
+                });
+            } else {
+                diags.push(
+                    err(
+                        "gcode::unterminated-comment",
+                        "comment is not closed".into(),
+                        at,
+                        text.len(),
+                    )
+                    .with_label("`(` without `)`")
+                    .with_help("close the comment with `)` (comments do not span lines)"),
+                );
+                return;
+            }
+        }
+
+        if percent {
+            if !words.is_empty() {
+                diags.push(err(
+                    "gcode::percent",
+                    "`%` must stand alone on its line".into(),
+                    0,
+                    text.len(),
+                ));
+                return;
+            }
+            out.push(self.verbatim(text, span, VerbatimReason::Delimiter, AxisSet::EMPTY, Placement::Inside));
+            return;
+        }
+
+        if line.block_delete {
+            let named_here: AxisSet = words.iter().filter_map(|w| Axis::from_letter(w.letter)).collect();
+            diags.push(
+                Diagnostic::warning("gcode::block-delete", "block delete `/` line is not evaluated")
+                    .at_bytes(line_no, text, 0, 1)
+                    .with_label("optional block")
+                    .with_help("the controller may skip it; it is copied as written and positions after it are unknown"),
+            );
+            out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, named_here, Placement::TopLevel { keeps_modes: true }));
+            return;
+        }
+
+        // Sort the words.
+        let mut g_codes: Vec<(Code, Word<'_>)> = Vec::new();
+        let mut m_codes: Vec<(Code, Word<'_>)> = Vec::new();
+        let mut axes: [Option<Word<'_>>; AXIS_COUNT] = [None; AXIS_COUNT];
+        let mut params: [Option<Word<'_>>; 26] = [None; 26];
+        let mut rest: Vec<Word<'_>> = Vec::new();
+        for w in &words {
+            match w.letter {
+                'G' | 'M' => {
+                    let Some(code) = parse_code(w.number) else {
+                        diags.push(err("gcode::code", format!("`{}` is not a valid code", w.text), w.start, w.end));
+                        return;
+                    };
+                    if w.letter == 'G' {
+                        g_codes.push((code, *w));
+                    } else {
+                        m_codes.push((code, *w));
+                    }
+                }
+                'N' => {}
+                l => {
+                    let slot = match Axis::from_letter(l) {
+                        Some(a) => &mut axes[a.index()],
+                        None => &mut params[(l as u8 - b'A') as usize],
+                    };
+                    if let Some(prev) = slot
+                        && (Axis::from_letter(l).is_some() || matches!(l, 'F' | 'I' | 'J' | 'K' | 'R'))
+                    {
+                        diags.push(
+                            err(
+                                "gcode::duplicate-word",
+                                format!("the word `{l}` appears twice in one block"),
+                                w.start,
+                                w.end,
+                            )
+                            .with_label(format!("second `{l}`; the first is `{}`", prev.text))
+                            .with_help("a block may give each letter once; split it into two blocks"),
+                        );
+                        return;
+                    }
+                    if slot.is_none() {
+                        *slot = Some(*w);
+                    }
+                    if Axis::from_letter(l).is_none() && !matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'P') {
+                        rest.push(*w);
+                    }
+                }
+            }
+        }
+        // Modal group conflicts.
+        for (i, (code, w)) in g_codes.iter().enumerate() {
+            if let Some(group) = g_group(*code)
+                && group != "non-modal"
+                && let Some((_, first)) = g_codes[..i].iter().find(|(c, _)| g_group(*c) == Some(group))
+            {
+                diags.push(
+                    err(
+                        "gcode::modal-conflict",
+                        format!("`{}` and `{}` are both in the {group} group", first.text, w.text),
+                        w.start,
+                        w.end,
+                    )
+                    .with_label("conflicts with an earlier code")
+                    .with_help("a block may hold one code of each modal group"),
+                );
+                return;
+            }
+        }
+        let named: AxisSet = Axis::ALL.into_iter().filter(|a| axes[a.index()].is_some()).collect();
+
+        // Modal settings, in RS274 execution order.
+        let mut motion_here = None;
+        let mut unsupported_here = false;
+        let mut dwell = false;
+        let mut offset_code = None;
+        let mut machine_frame = false;
+        let mut axis_user = false;
+        let mut other_g: Vec<Word<'_>> = Vec::new();
+        let mut g_list = Vec::new();
+        for (code, w) in &g_codes {
+            g_list.push(*code);
+            match *code {
+                (0, 0) => motion_here = Some(MotionMode::Rapid),
+                (1, 0) => motion_here = Some(MotionMode::Linear),
+                (2, 0) => motion_here = Some(MotionMode::Arc { clockwise: true }),
+                (3, 0) => motion_here = Some(MotionMode::Arc { clockwise: false }),
+                // G80 cancels a canned cycle; Mach3 programs also write it beside G0.
+                (80, 0) => {
+                    if self.motion == MotionMode::Unsupported && motion_here.is_none() {
+                        motion_here = Some(MotionMode::None);
+                    }
+                }
+                (17, 0) => self.plane = Plane::XY,
+                (18, 0) => self.plane = Plane::ZX,
+                (19, 0) => self.plane = Plane::YZ,
+                (20, 0) => self.inch = true,
+                (21, 0) => self.inch = false,
+                (90, 0) => self.relative = false,
+                (91, 0) => self.relative = true,
+                (90, 1) => self.arc_center_absolute = true,
+                (91, 1) => self.arc_center_absolute = false,
+                (93, 0) => self.feed_mode = FeedMode::InverseTime,
+                (94, 0) => self.feed_mode = FeedMode::PerMinute,
+                (95, 0) => self.feed_mode = FeedMode::PerRevolution,
+                (4, 0) => dwell = true,
+                (53, 0) => machine_frame = true,
+                (92, minor @ 0..=3) => {
+                    offset_code = Some(match minor {
+                        0 => OffsetCode::Set,
+                        1 => OffsetCode::Clear,
+                        2 => OffsetCode::Suspend,
+                        _ => OffsetCode::Restore,
+                    })
+                }
+                c if g_group(c) == Some("motion") => {
+                    unsupported_here = true;
+                    other_g.push(*w);
+                }
+                c if g_uses_axes(c) => {
+                    axis_user = true;
+                    other_g.push(*w);
+                }
+                _ => other_g.push(*w),
+            }
+        }
+        for (code, _) in &m_codes {
+            match *code {
+                (82, 0) => self.relative_e = false,
+                (83, 0) => self.relative_e = true,
+                // Standard machine M codes never take axis words; on any other M code
+                // (M92, M201, M203, M584, ...) axis letters are its parameters.
+                (0..=9 | 30 | 48..=53 | 60..=68, _) => {}
+                _ if motion_here.is_none() => axis_user = true,
+                _ => {}
+            }
+        }
+        if unsupported_here {
+            self.motion = MotionMode::Unsupported;
+        } else if let Some(m) = motion_here {
+            self.motion = m;
+        }
+        let m_list: Vec<Code> = m_codes.iter().map(|(c, _)| *c).collect();
+        let passthrough_m: Vec<Word<'_>> = m_codes
+            .iter()
+            .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
+            .map(|(_, w)| *w)
+            .collect();
+        self.program_started = true;
+
+        // F applies to this block and after; in G93 it is per block.
+        let mut feed_written = false;
+        if let Some(f) = params[(b'F' - b'A') as usize]
+            && !dwell
+        {
+            if f.value < 0.0 {
+                diags.push(
+                    err("gcode::feed", format!("negative feed `{}`", f.text), f.start, f.end)
+                        .with_help("F is a speed and must not be negative"),
+                );
+                return;
+            }
+            let scale = if self.inch && self.feed_mode != FeedMode::InverseTime {
+                MM_PER_INCH
+            } else {
+                1.0
+            };
+            self.feed = Some(f.value * scale);
+            feed_written = true;
+        }
+
+        let mut blocks: Vec<Block> = Vec::new();
+        // Pass-through command words (everything the IR does not model).
+        let command_words: Vec<Word<'_>> = {
+            let mut v: Vec<Word<'_>> = other_g
+                .iter()
+                .chain(passthrough_m.iter())
+                .chain(rest.iter())
+                .copied()
+                .collect();
+            if axis_user || dwell || offset_code.is_some() {
+                // The command's own parameters stay with it.
+                for l in ['I', 'J', 'K', 'R', 'P', 'F'] {
+                    if let Some(w) = params[(l as u8 - b'A') as usize]
+                        && !(dwell && matches!(l, 'P'))
+                        && !(l == 'F' && !dwell)
+                    {
+                        v.push(w);
+                    }
+                }
+            }
+            v.sort_by_key(|w| w.start);
+            v
+        };
+
+        if let Some(code) = offset_code {
+            let mut declared = Joints::default();
+            match code {
+                OffsetCode::Set => {
+                    if named.is_empty() {
+                        // RepRapFirmware and Marlin: G92 with no axes does nothing useful.
+                        diags.push(
+                            Diagnostic::warning("gcode::g92-empty", "G92 without axis words changes nothing")
+                                .at_bytes(line_no, text, 0, text.len()),
+                        );
+                    }
+                    for a in named.iter() {
+                        let Some(w) = axes[a.index()] else { continue };
+                        let v = w.value * self.unit(a);
+                        declared.set(a, v);
+                        match self.pos.get(a) {
+                            Some(p) => self.offsets[a.index()] = v - p,
+                            None => {
+                                self.offsets[a.index()] = 0.0;
+                                self.pos.set(a, v);
+                            }
+                        }
+                    }
+                }
+                OffsetCode::Clear => {
+                    self.offsets = [0.0; AXIS_COUNT];
+                    self.suspended = None;
+                }
+                OffsetCode::Suspend => {
+                    self.suspended = Some(self.offsets);
+                    self.offsets = [0.0; AXIS_COUNT];
+                }
+                OffsetCode::Restore => {
+                    if let Some(s) = self.suspended.take() {
+                        self.offsets = s;
+                    }
+                }
+            }
+            if !command_words.is_empty() {
+                blocks.push(self.command(span, &command_words, &g_list, &m_list, named, false));
+            }
+            blocks.push(Block::new(
+                span,
+                BlockKind::Offset(OffsetChange {
+                    code,
+                    declared,
+                    offsets: self.offsets,
+                }),
+            ));
+        } else if dwell {
+            let p = params[(b'P' - b'A') as usize];
+            let s = params[(b'S' - b'A') as usize];
+            let x = axes[Axis::X.index()];
+            let seconds = match (p, s, x) {
+                (Some(p), None, None) => Some(if self.options.dwell_p_milliseconds {
+                    p.value / 1000.0
+                } else {
+                    p.value
+                }),
+                (None, Some(s), None) | (None, None, Some(s)) => Some(s.value),
+                _ => None,
+            };
+            match seconds {
+                Some(seconds) if seconds >= 0.0 => blocks.push(Block::new(span, BlockKind::Dwell { seconds })),
+                _ => {
+                    // Dialect dwells (`G4 F0.25`, bare `G4`) pass through as written.
+                    let mut words: Vec<Word<'_>> = words.iter().filter(|w| w.letter != 'N').copied().collect();
+                    words.sort_by_key(|w| w.start);
+                    blocks.push(self.command(span, &words, &g_list, &m_list, AxisSet::EMPTY, false));
+                }
+            }
+        } else if axis_user {
+            let mut words = command_words.clone();
+            words.extend(named.iter().filter_map(|a| axes[a.index()]));
+            words.sort_by_key(|w| w.start);
+            blocks.push(self.command(span, &words, &g_list, &m_list, named, true));
+            for a in bare.iter().filter_map(|(_, l)| Axis::from_letter(l.chars().next().unwrap_or(' '))) {
+                self.pos.forget(std::iter::once(a).collect());
+            }
+        } else if !named.is_empty() || (motion_here.is_some() && !bare.is_empty()) {
+            if let Some(&(s, l)) = bare.first() {
+                diags.push(letter_error(line_no, text, s, l));
+                return;
+            }
+            match self.motion {
+                MotionMode::Unsupported => {
+                    diags.push(
+                        Diagnostic::warning(
+                            "gcode::unsupported-motion",
+                            "motion mode is not modelled (canned cycle, spline, probing or threading)",
+                        )
+                        .at_bytes(line_no, text, 0, text.len())
+                        .with_label("passes through unchanged")
+                        .with_help("the block is copied as written; positions after it are treated as unknown"),
+                    );
+                    blocks.push(self.verbatim(text, span, VerbatimReason::Unevaluated, AxisSet::ALL, Placement::TopLevel { keeps_modes: true }));
+                }
+                MotionMode::None => {
+                    let w = named.iter().find_map(|a| axes[a.index()]);
+                    let (s, e) = w.map_or((0, text.len()), |w| (w.start, w.end));
+                    diags.push(
+                        err("gcode::no-motion-mode", "axis words with no motion mode in force".into(), s, e)
+                            .with_label("where should this go?")
+                            .with_help("start the block with G0 or G1"),
+                    );
+                    return;
+                }
+                mode => {
+                    if !passthrough_m.is_empty() || !other_g.is_empty() || !rest.is_empty() || machine_frame {
+                        // Words other than the move's ride along on the same line.
+                    }
+                    let extra: Vec<&str> = command_words.iter().map(|w| w.text).collect();
+                    match self.motion_block(text, span, mode, &axes, &params, named, machine_frame, feed_written, extra, diags) {
+                        Some(b) => blocks.push(b),
+                        None => return,
+                    }
+                }
+            }
+        } else if let Some(&(s, l)) = bare.first() {
+            if passthrough_m.is_empty() && other_g.is_empty() {
+                diags.push(letter_error(line_no, text, s, l));
+                return;
+            }
+            // `M84 X Y`, `G28 X Y`: letters are the command's arguments.
+            let mut v = command_words.clone();
+            v.sort_by_key(|w| w.start);
+            let mut cmd = self.command(span, &v, &g_list, &m_list, AxisSet::EMPTY, false);
+            if let BlockKind::Command(c) = &mut cmd.kind {
+                c.text = strip_line_number_and_comments(text);
+            }
+            blocks.push(cmd);
+        } else if !command_words.is_empty() {
+            blocks.push(self.command(span, &command_words, &g_list, &m_list, AxisSet::EMPTY, false));
+        }
+
+        if blocks.is_empty() {
+            if !comments.is_empty() {
+                blocks.push(Block::new(span, BlockKind::Comment));
+            } else {
+                return;
+            }
+        }
+        blocks[0].comments = comments;
+        out.extend(blocks);
+    }
+
+    fn unit(&self, axis: Axis) -> f64 {
+        if self.inch && !axis.is_rotary() {
+            MM_PER_INCH
+        } else {
+            1.0
+        }
+    }
+
+    fn command(
+        &mut self,
+        span: Span,
+        words: &[Word<'_>],
+        g: &[Code],
+        m: &[Code],
+        named: AxisSet,
+        with_axes: bool,
+    ) -> Block {
+        let mut text = String::new();
+        for w in words {
+            if !text.is_empty() {
+                text.push(' ');
+            }
+            text.push(w.letter);
+            text.push_str(w.number);
+        }
+        let clob = clobbers(g, m, named);
+        self.pos.forget(clob);
+        let modes = if with_axes && !named.is_empty() {
+            self.modes()
+        } else {
+            WrittenModes::default()
+        };
+        Block::new(
+            span,
+            BlockKind::Command(Command {
+                text,
+                modes,
+                clobbers: clob,
+            }),
+        )
+    }
+
+    /// Resolves the start position of `axis`, assuming 0 (with a warning) if unknown.
+    fn start(&mut self, axis: Axis, line_no: u32, text: &str, diags: &mut Vec<Diagnostic>) -> f64 {
+        match self.pos.get(axis) {
+            Some(v) => v,
+            None => {
+                if !self.assumed.contains(axis) {
+                    self.assumed.insert(axis);
+                    diags.push(
+                        Diagnostic::warning(
+                            "gcode::unknown-position",
+                            format!("the position of {} is not known here; it is taken as 0", axis.letter()),
+                        )
+                        .at_bytes(line_no, text, 0, text.len())
+                        .with_help(format!(
+                            "a relative move or an arc needs its start; move {} to an absolute position first",
+                            axis.letter()
+                        )),
+                    );
+                }
+                self.pos.set(axis, 0.0);
+                0.0
+            }
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn motion_block(
+        &mut self,
+        text: &str,
+        span: Span,
+        mode: MotionMode,
+        axes: &[Option<Word<'_>>; AXIS_COUNT],
+        params: &[Option<Word<'_>>; 26],
+        named: AxisSet,
+        machine_frame: bool,
+        feed_written: bool,
+        extra: Vec<&str>,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Option<Block> {
+        let line_no = span.line;
+        let param = |l: char| params[(l as u8 - b'A') as usize];
+        let start = self.pos;
+        let mut target = self.pos;
+        for a in named.iter() {
+            let Some(w) = axes[a.index()] else { continue };
+            let v = w.value * self.unit(a);
+            let rel = if a == Axis::E {
+                self.relative || self.relative_e
+            } else {
+                self.relative
+            };
+            let value = if machine_frame {
+                v
+            } else if rel {
+                self.start(a, line_no, text, diags) + v
+            } else {
+                v - self.offsets[a.index()]
+            };
+            target.set(a, value);
+        }
+        let mut extra_turns = 0;
+        let kind = match mode {
+            MotionMode::Rapid => MotionKind::Rapid,
+            MotionMode::Linear => MotionKind::Linear,
+            MotionMode::Arc { clockwise } => {
+                let (u, v, _) = self.plane.axes();
+                if start.get(u).is_none() || start.get(v).is_none() {
+                    diags.push(
+                        Diagnostic::warning("gcode::arc-unknown-start", "arc starts from a position that is not known here")
+                            .at_bytes(line_no, text, 0, text.len())
+                            .with_label("passes through unchanged")
+                            .with_help(format!(
+                                "its centre depends on the start; move {} and {} to absolute positions before the arc",
+                                u.letter(),
+                                v.letter()
+                            )),
+                    );
+                    return Some(self.verbatim(
+                        text,
+                        span,
+                        VerbatimReason::Unevaluated,
+                        AxisSet::ALL,
+                        Placement::TopLevel { keeps_modes: true },
+                    ));
+                }
+                let start = self.pos;
+                let s2 = [start.values[u.index()], start.values[v.index()]];
+                let e2 = [target.values[u.index()], target.values[v.index()]];
+                let offset_letters = plane_offset_letters(self.plane);
+                let off_u = param(offset_letters.0);
+                let off_v = param(offset_letters.1);
+                let off_n = param(offset_letters.2);
+                let r = param('R');
+                if let Some(p) = param('P') {
+                    if p.value < 1.0 || p.value.fract() != 0.0 {
+                        diags.push(
+                            Diagnostic::error("gcode::arc-turns", format!("`{}`: P must be a whole number of turns, 1 or more", p.text))
+                                .at_bytes(line_no, text, p.start, p.end),
+                        );
+                        return None;
+                    }
+                    extra_turns = p.value as u32 - 1;
+                }
+                let arc_err = |msg: String, help: &str| {
+                    Diagnostic::error("gcode::arc", msg)
+                        .at_bytes(line_no, text, 0, text.len())
+                        .with_help(help.to_string())
+                };
+                if let Some(w) = off_n {
+                    diags.push(
+                        Diagnostic::error(
+                            "gcode::arc",
+                            format!("`{}` is not used by an arc in the {} plane", w.text, self.plane.gcode()),
+                        )
+                        .at_bytes(line_no, text, w.start, w.end)
+                        .with_help(format!(
+                            "in {} the centre offsets are {} and {}",
+                            self.plane.gcode(),
+                            offset_letters.0,
+                            offset_letters.1
+                        )),
+                    );
+                    return None;
+                }
+                let unit = if self.inch { MM_PER_INCH } else { 1.0 };
+                let centre2 = match (off_u.is_some() || off_v.is_some(), r) {
+                    (true, Some(_)) => {
+                        diags.push(arc_err(
+                            "arc has both a radius (R) and centre offsets".into(),
+                            "give either R or the centre offsets, not both",
+                        ));
+                        return None;
+                    }
+                    (false, None) => {
+                        diags.push(arc_err(
+                            "arc has neither a radius (R) nor centre offsets".into(),
+                            &format!(
+                                "add {} and {} (centre relative to the start) or R",
+                                offset_letters.0, offset_letters.1
+                            ),
+                        ));
+                        return None;
+                    }
+                    (true, None) => {
+                        let du = off_u.map_or(0.0, |w| w.value * unit);
+                        let dv = off_v.map_or(0.0, |w| w.value * unit);
+                        let c = if self.arc_center_absolute {
+                            [
+                                du - self.offsets[u.index()],
+                                dv - self.offsets[v.index()],
+                            ]
+                        } else {
+                            [s2[0] + du, s2[1] + dv]
+                        };
+                        let r0 = ((s2[0] - c[0]).powi(2) + (s2[1] - c[1]).powi(2)).sqrt();
+                        let r1 = ((e2[0] - c[0]).powi(2) + (e2[1] - c[1]).powi(2)).sqrt();
+                        let tol = self.options.arc_tolerance.max(1e-3 * r0.max(r1));
+                        if (r0 - r1).abs() > tol {
+                            let msg = format!(
+                                "arc radius does not fit its end points: {r0:.4} mm at the start, {r1:.4} mm at the end"
+                            );
+                            if self.options.strict_arcs {
+                                diags.push(arc_err(
+                                    msg,
+                                    "check the end point and the centre offsets; they must be equidistant from the centre",
+                                ));
+                                return None;
+                            }
+                            diags.push(
+                                Diagnostic::warning("gcode::arc-radius", msg)
+                                    .at_bytes(line_no, text, 0, text.len())
+                                    .with_label("kept as written")
+                                    .with_help(
+                                        "the centre is kept where the offsets put it; controllers may reject \
+                                         the arc or move in a spiral (set strict_arcs to make this an error)",
+                                    ),
+                            );
+                        }
+                        if r0 == 0.0 {
+                            diags.push(arc_err(
+                                "arc centre is at its start point".into(),
+                                "the centre offsets must not all be 0",
+                            ));
+                            return None;
+                        }
+                        c
+                    }
+                    (false, Some(rw)) => {
+                        let radius = rw.value * unit;
+                        let d = ((e2[0] - s2[0]).powi(2) + (e2[1] - s2[1]).powi(2)).sqrt();
+                        if d < 1e-9 {
+                            diags.push(arc_err(
+                                "an R arc cannot end where it starts".into(),
+                                "a full circle needs centre offsets instead of R",
+                            ));
+                            return None;
+                        }
+                        let half = d / 2.0;
+                        let tol = self.options.arc_tolerance.max(1e-3 * radius.abs());
+                        if radius == 0.0 {
+                            diags.push(arc_err("arc radius R0 is not a circle".into(), "give the arc's radius"));
+                            return None;
+                        }
+                        if half > radius.abs() + tol {
+                            let msg = format!(
+                                "arc radius {:.4} mm does not fit its end points, which are {:.4} mm apart",
+                                radius.abs(),
+                                d
+                            );
+                            let help = "the radius must be at least half the distance between start and end";
+                            if self.options.strict_arcs {
+                                diags.push(arc_err(msg, help));
+                                return None;
+                            }
+                            diags.push(
+                                Diagnostic::warning("gcode::arc-radius", msg)
+                                    .at_bytes(line_no, text, 0, text.len())
+                                    .with_label("made a half circle")
+                                    .with_help(format!(
+                                        "{help}; it is kept as a half circle through both points, as Mach3 \
+                                         does (set strict_arcs to make this an error)"
+                                    )),
+                            );
+                        }
+                        let h = (radius * radius - half * half).max(0.0).sqrt();
+                        let mid = [(s2[0] + e2[0]) / 2.0, (s2[1] + e2[1]) / 2.0];
+                        let dir = [(e2[0] - s2[0]) / d, (e2[1] - s2[1]) / d];
+                        // Right of the chord for G2 with R > 0, left for G3; flipped by R < 0.
+                        let right = [dir[1], -dir[0]];
+                        let sign = if clockwise == (radius > 0.0) { 1.0 } else { -1.0 };
+                        [mid[0] + sign * h * right[0], mid[1] + sign * h * right[1]]
+                    }
+                };
+                let mut center = Vector3::zeros();
+                center[u.index()] = centre2[0];
+                center[v.index()] = centre2[1];
+                MotionKind::Arc(Arc {
+                    clockwise,
+                    plane: self.plane,
+                    center,
+                    extra_turns,
+                })
+            }
+            MotionMode::None | MotionMode::Unsupported => return None,
+        };
+        if self.feed_mode == FeedMode::InverseTime && !matches!(kind, MotionKind::Rapid) && !feed_written {
+            diags.push(
+                Diagnostic::error("gcode::inverse-time-feed", "in inverse time mode (G93) every feed move needs F")
+                    .at_bytes(line_no, text, 0, text.len())
+                    .with_help("add F (1/minutes for this block) or switch to G94"),
+            );
+            return None;
+        }
+        if let Some(w) = param('R').filter(|_| !matches!(kind, MotionKind::Arc(_))) {
+            let _ = w;
+        }
+        let mut extra_text = String::new();
+        for (i, w) in extra.iter().enumerate() {
+            if i > 0 {
+                extra_text.push(' ');
+            }
+            extra_text.push_str(&normalise_word(w));
+        }
+        if !matches!(kind, MotionKind::Arc(_)) {
+            // I, J, K, R, P on a line move belong to the controller (tool vectors, ...).
+            for l in ['I', 'J', 'K', 'R', 'P'] {
+                if let Some(w) = param(l) {
+                    if !extra_text.is_empty() {
+                        extra_text.push(' ');
+                    }
+                    extra_text.push_str(&normalise_word(w.text));
+                }
+            }
+        }
+        let motion = Motion {
+            kind,
+            target: Target::Joints(target),
+            feed: Feed {
+                mode: self.feed_mode,
+                rate: self.feed,
+            },
+            written: named,
+            machine_frame,
+            extra: extra_text,
+        };
+        self.pos = target;
+        if machine_frame {
+            self.pos.forget(named);
+        }
+        Some(Block::new(span, BlockKind::Motion(motion)))
+    }
+}
+
+/// Where a verbatim line stands.
+#[derive(Debug, Clone, Copy)]
+enum Placement {
+    /// At the top level of the program: the backend may put the controller into the
+    /// line's modes before it. `keeps_modes`: the line changes none of them.
+    TopLevel { keeps_modes: bool },
+    /// Inside a block (control flow, subprogram): nothing may be inserted before it.
+    Inside,
+}
+
+/// Classification of a line outside the plain grammar.
+enum Unplain {
+    /// A command whose arguments are not plain words (`M587 S"net"`, `M563 D0:1`).
+    Command,
+    /// Parameters, expressions or dialect statements.
+    Unevaluated,
+    /// An error was reported.
+    Error,
+}
+
+fn plane_offset_letters(plane: Plane) -> (char, char, char) {
+    match plane {
+        Plane::XY => ('I', 'J', 'K'),
+        Plane::ZX => ('K', 'I', 'J'),
+        Plane::YZ => ('J', 'K', 'I'),
+    }
+}
+
+/// Letter (upper case) and number (without blanks) of a word token.
+fn split_word(w: &str) -> (char, String) {
+    let mut chars = w.chars();
+    let letter = chars.next().unwrap_or(' ').to_ascii_uppercase();
+    let number: String = chars.filter(|c| !c.is_whitespace()).collect();
+    (letter, number)
+}
+
+/// The number part of a word, as a slice (blanks inside are rare; they are kept).
+fn number_slice(w: &str) -> &str {
+    w[1..].trim_start()
+}
+
+fn normalise_word(w: &str) -> String {
+    let (letter, number) = split_word(w);
+    format!("{letter}{number}")
+}
+
+fn letter_error(line_no: u32, text: &str, s: usize, l: &str) -> Diagnostic {
+    Diagnostic::error("gcode::letter-without-number", format!("letter `{l}` has no number"))
+        .at_bytes(line_no, text, s, s + l.len())
+        .with_label("needs a value")
+        .with_help(format!("write a value after it (for example `{}0`) or remove it", l.to_ascii_uppercase()))
+}
+
+fn contains_m99(text: &str) -> bool {
+    let mut toks = Vec::new();
+    lex_line(text, &mut toks);
+    toks.iter().any(|t| match t.1 {
+        Tok::Word(w) => {
+            let (l, n) = split_word(w);
+            l == 'M' && parse_code(&n) == Some((99, 0))
+        }
+        _ => false,
+    })
+}
+
+/// The o-word keyword of a LinuxCNC control line (`o100 sub`, `o<x> if [..]`).
+fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<&'a str> {
+    const KEYWORDS: &[&str] = &[
+        "sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
+        "do", "repeat", "endrepeat", "break", "continue",
+    ];
+    let first = toks.first()?.1;
+    let starts_o = match first {
+        Tok::Word(w) | Tok::Letter(w) => w.starts_with(['o', 'O']),
+        _ => false,
+    };
+    if !starts_o {
+        return None;
+    }
+    toks.iter().skip(1).find_map(|t| match t.1 {
+        Tok::Ident(w) if KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(w)) => Some(w),
+        _ => None,
+    })
+}
+
+/// The label of an o-word line: the text between `o` and the keyword.
+fn oword_label(text: &str, toks: &[Spanned<'_>]) -> String {
+    let end = toks
+        .iter()
+        .skip(1)
+        .find(|t| matches!(t.1, Tok::Ident(_)))
+        .map_or(text.len(), |t| t.0);
+    text[toks[0].0 + 1..end].trim().to_ascii_lowercase()
+}
+
+fn strip_line_number_and_comments(text: &str) -> String {
+    let mut toks = Vec::new();
+    lex_line(text, &mut toks);
+    let mut out = String::new();
+    for (s, t, e) in toks {
+        match t {
+            Tok::Comment(_) | Tok::LineComment(_) | Tok::OpenComment(_) | Tok::Checksum(_) => {}
+            Tok::Word(w) if w.starts_with(['N', 'n']) => {}
+            _ => {
+                if !out.is_empty() {
+                    out.push(' ');
+                }
+                out.push_str(&text[s..e]);
+            }
+        }
+    }
+    out
+}
+
+pub(super) fn not_utf8(span: Span, valid_up_to: usize, lossy: &str) -> Diagnostic {
+    let column = lossy
+        .char_indices()
+        .take_while(|(i, _)| *i < valid_up_to)
+        .count() as u32
+        + 1;
+    Diagnostic::error("gcode::not-utf8", "the line is not valid UTF-8 text")
+        .at_line(span.line, lossy, column, 1)
+        .with_label("this byte")
+        .with_help("G-code is text; check that the file is not binary or in another encoding (save it as UTF-8)")
+}
+
+fn parse_error(line_no: u32, text: &str, err: lalrpop_util::ParseError<usize, Tok<'_>, ()>) -> Diagnostic {
+    use lalrpop_util::ParseError as P;
+    let (s, e, what) = match err {
+        P::UnrecognizedToken { token: (s, t, e), .. } | P::ExtraToken { token: (s, t, e) } => (s, e, describe(t)),
+        P::InvalidToken { location } => (location, location + 1, "this".to_string()),
+        P::UnrecognizedEof { location, .. } => (location, location, "the end of the line".into()),
+        P::User { .. } => (0, text.len(), "the line".into()),
+    };
+    Diagnostic::error("gcode::syntax", format!("unexpected {what}"))
+        .at_bytes(line_no, text, s, e)
+        .with_label("not allowed here")
+        .with_help("block delete `/` starts a line; a checksum `*NN` and a `;` comment end it")
+}
+
+fn describe(t: Tok<'_>) -> String {
+    match t {
+        Tok::Checksum(c) => format!("checksum `{c}`"),
+        Tok::Slash(s) => format!("block delete `{s}`"),
+        Tok::Word(w) | Tok::Letter(w) | Tok::Ident(w) | Tok::Number(w) | Tok::Other(w) => format!("`{w}`"),
+        Tok::Comment(c) | Tok::OpenComment(c) | Tok::LineComment(c) | Tok::Str(c) => format!("`{c}`"),
+        Tok::Percent => "`%`".into(),
+        Tok::OpenParen => "`(`".into(),
+    }
+}

@@ -1,0 +1,184 @@
+//! G-code frontend: RS274/NGC, Fanuc, RepRapFirmware and Marlin dialects.
+//!
+//! Plain blocks are lowered to IR with modal state resolved. Lines the IR cannot evaluate
+//! (parameters, expressions, control flow, RepRapFirmware meta commands, subprogram
+//! bodies) travel as [`Verbatim`](crate::ir::Verbatim) text with a warning, and the
+//! positions they may change become unknown.
+
+pub mod ast;
+pub mod lexer;
+mod lower;
+
+use std::io::BufRead;
+
+use serde::{Deserialize, Serialize};
+
+use crate::diag::Diagnostic;
+use crate::front::{Frontend, LineReader, RawLine};
+use crate::ir::Block;
+
+lalrpop_util::lalrpop_mod!(
+    #[allow(clippy::all, missing_docs, unused)]
+    grammar,
+    "/gcode.rs"
+);
+
+/// Frontend options.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Options {
+    /// `G4 P` counts milliseconds (RepRapFirmware, Marlin, Fanuc) rather than seconds
+    /// (LinuxCNC).
+    pub dwell_p_milliseconds: bool,
+    /// Largest difference between an arc's start and end radius, mm, below which the
+    /// arc is accepted (a relative 0.1 % of the radius is also allowed).
+    pub arc_tolerance: f64,
+    /// An arc whose end is off its circle by more than the tolerance is an error; when
+    /// false it is a warning and the arc is kept as written.
+    pub strict_arcs: bool,
+    /// Longest line accepted, bytes; a longer line is an error and is skipped.
+    pub max_line_len: usize,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            dwell_p_milliseconds: true,
+            arc_tolerance: 0.01,
+            strict_arcs: false,
+            max_line_len: 1 << 20,
+        }
+    }
+}
+
+/// Streaming G-code frontend over any buffered reader.
+///
+/// ```
+/// use ncpost::front::{Frontend, gcode::{Parser, Options}};
+/// let mut parser = Parser::new("G0 X1\nG1 X2 F100\n".as_bytes(), Options::default());
+/// let mut diags = Vec::new();
+/// let mut count = 0;
+/// while let Some(_block) = parser.next_block(&mut diags) {
+///     count += 1;
+/// }
+/// assert_eq!(count, 2);
+/// assert!(diags.is_empty());
+/// ```
+pub struct Parser<R> {
+    reader: LineReader<R>,
+    lower: lower::Lowerer,
+    pending: std::collections::VecDeque<Block>,
+    lines: u64,
+    done: bool,
+}
+
+impl<R: BufRead> Parser<R> {
+    /// A parser reading from `reader`.
+    pub fn new(reader: R, options: Options) -> Self {
+        Parser {
+            reader: LineReader::new(reader, options.max_line_len),
+            lower: lower::Lowerer::new(options),
+            pending: Default::default(),
+            lines: 0,
+            done: false,
+        }
+    }
+
+    fn read_more(&mut self, diags: &mut Vec<Diagnostic>) {
+        let mut out = Vec::new();
+        while out.is_empty() && !self.done {
+            match self.reader.next_line() {
+                Ok(Some((raw, span))) => {
+                    self.lines += 1;
+                    match raw {
+                        RawLine::Text(text) => self.lower.line(text, span, &mut out, diags),
+                        RawLine::TooLong => diags.push(
+                            Diagnostic::error(
+                                "gcode::line-too-long",
+                                format!(
+                                    "line {} is {} bytes long, over the limit of {} bytes",
+                                    span.line, span.len, self.lower.options.max_line_len
+                                ),
+                            )
+                            .at_span(span)
+                            .with_help(
+                                "this is not G-code a controller accepts; check that the file \
+                                 is not binary or missing its line breaks",
+                            ),
+                        ),
+                        RawLine::NotUtf8 { valid_up_to, lossy } => {
+                            diags.push(lower::not_utf8(span, valid_up_to, &lossy))
+                        }
+                    }
+                }
+                Ok(None) => {
+                    self.done = true;
+                    if self.lines == 0 {
+                        diags.push(
+                            Diagnostic::error("gcode::empty", "the input is empty")
+                                .with_help("give a file with at least one G-code line"),
+                        );
+                    }
+                    self.lower.finish(diags);
+                }
+                Err(e) => {
+                    self.done = true;
+                    diags.push(Diagnostic::error(
+                        "io::read",
+                        format!("cannot read the input: {e}"),
+                    ));
+                }
+            }
+        }
+        self.pending.extend(out);
+    }
+}
+
+impl<R: BufRead> Frontend for Parser<R> {
+    fn next_block(&mut self, diags: &mut Vec<Diagnostic>) -> Option<Block> {
+        if self.pending.is_empty() {
+            self.read_more(diags);
+        }
+        self.pending.pop_front()
+    }
+
+    fn bytes_read(&self) -> u64 {
+        self.reader.bytes_read()
+    }
+}
+
+/// A whole program parsed from a string.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Program {
+    /// The blocks in order.
+    pub blocks: Vec<Block>,
+    /// Warnings (and, in an `Err`, errors) in source order.
+    pub diagnostics: Vec<Diagnostic>,
+}
+
+/// Parses and lowers a whole G-code program held in memory.
+///
+/// Returns `Err` with every diagnostic when any of them is an error.
+///
+/// ```
+/// use ncpost::front::gcode::{parse_str, Options};
+/// let program = parse_str("G21 G90\nG0 X10 Y5\n", &Options::default()).unwrap();
+/// assert_eq!(program.blocks.len(), 1);
+/// assert!(parse_str("G1 X1 X2\n", &Options::default()).is_err());
+/// ```
+pub fn parse_str(src: &str, options: &Options) -> Result<Program, Vec<Diagnostic>> {
+    let mut parser = Parser::new(src.as_bytes(), options.clone());
+    let mut blocks = Vec::new();
+    let mut diagnostics = Vec::new();
+    while let Some(b) = parser.next_block(&mut diagnostics) {
+        blocks.push(b);
+    }
+    if diagnostics.iter().any(Diagnostic::is_error) {
+        Err(diagnostics)
+    } else {
+        Ok(Program {
+            blocks,
+            diagnostics,
+        })
+    }
+}

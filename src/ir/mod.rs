@@ -1,0 +1,485 @@
+//! The intermediate representation: a stream of [`Block`]s.
+//!
+//! # Invariants
+//! Every frontend produces, every pass keeps and the verifier ([`verify::Verifier`]) checks:
+//! 1. Every block carries the [`Span`] of the source line it came from; passes that split
+//!    or add blocks give them the span of the block they stand for.
+//! 2. Motion targets are absolute, in millimetres and degrees, after modal resolution:
+//!    G90/G91, G20/G21, M82/M83 and G92 offsets are already applied, so a pass never
+//!    re-derives modal state. Coordinates are in the *program frame without G92 offsets*
+//!    (the frame the machine moves in continuously); [`OffsetChange`] blocks record the
+//!    offsets a backend must add back when printing.
+//! 3. An axis whose position is not known (program start, after homing or probing, after
+//!    a line the frontend could not evaluate) is absent from [`Joints::known`]. Nothing
+//!    prints or computes with an unknown axis value.
+//! 4. Before inverse kinematics a target may be a tool [`Pose`] (tip point and unit tool
+//!    axis); backends accept joint vectors only ([`Target::Joints`]).
+//! 5. Nothing the frontend does not understand is dropped: comments, unknown words,
+//!    meta commands and quoted strings travel in order as [`Command`], [`Verbatim`] or
+//!    [`Comment`] data.
+//! 6. All numbers are finite `f64`.
+
+pub mod dump;
+pub mod verify;
+
+use nalgebra::{Point3, Unit, Vector3};
+
+/// Where a block came from: the whole source line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Span {
+    /// Byte offset of the line in the input.
+    pub offset: u64,
+    /// Length of the line in bytes, without its terminator.
+    pub len: u32,
+    /// 1-based line number.
+    pub line: u32,
+}
+
+/// A machine axis. `E` is the extruder (or any feeder) axis of printers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Axis {
+    /// Linear X.
+    X,
+    /// Linear Y.
+    Y,
+    /// Linear Z.
+    Z,
+    /// Rotary about X.
+    A,
+    /// Rotary about Y.
+    B,
+    /// Rotary about Z.
+    C,
+    /// Secondary linear parallel to X.
+    U,
+    /// Secondary linear parallel to Y.
+    V,
+    /// Secondary linear parallel to Z.
+    W,
+    /// Extruder.
+    E,
+}
+
+/// Number of axes an IR position holds.
+pub const AXIS_COUNT: usize = 10;
+
+impl Axis {
+    /// All axes, in index order (also the order they are printed in).
+    pub const ALL: [Axis; AXIS_COUNT] = [
+        Axis::X,
+        Axis::Y,
+        Axis::Z,
+        Axis::A,
+        Axis::B,
+        Axis::C,
+        Axis::U,
+        Axis::V,
+        Axis::W,
+        Axis::E,
+    ];
+
+    /// Index into position arrays.
+    pub fn index(self) -> usize {
+        self as usize
+    }
+
+    /// The upper-case word letter.
+    pub fn letter(self) -> char {
+        b"XYZABCUVWE"[self.index()] as char
+    }
+
+    /// The axis a word letter names, either case.
+    pub fn from_letter(letter: char) -> Option<Axis> {
+        Some(match letter.to_ascii_uppercase() {
+            'X' => Axis::X,
+            'Y' => Axis::Y,
+            'Z' => Axis::Z,
+            'A' => Axis::A,
+            'B' => Axis::B,
+            'C' => Axis::C,
+            'U' => Axis::U,
+            'V' => Axis::V,
+            'W' => Axis::W,
+            'E' => Axis::E,
+            _ => return None,
+        })
+    }
+
+    /// A, B and C are rotary (degrees); the rest are lengths (mm).
+    pub fn is_rotary(self) -> bool {
+        matches!(self, Axis::A | Axis::B | Axis::C)
+    }
+}
+
+/// A set of axes, as a bit mask.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Hash)]
+pub struct AxisSet(u16);
+
+impl AxisSet {
+    /// No axis.
+    pub const EMPTY: AxisSet = AxisSet(0);
+    /// Every axis.
+    pub const ALL: AxisSet = AxisSet((1 << AXIS_COUNT) - 1);
+    /// X, Y and Z.
+    pub const XYZ: AxisSet = AxisSet(0b111);
+
+    /// Whether `axis` is in the set.
+    pub fn contains(self, axis: Axis) -> bool {
+        self.0 & (1 << axis.index()) != 0
+    }
+    /// Adds `axis`.
+    pub fn insert(&mut self, axis: Axis) {
+        self.0 |= 1 << axis.index();
+    }
+    /// Removes `axis`.
+    pub fn remove(&mut self, axis: Axis) {
+        self.0 &= !(1 << axis.index());
+    }
+    /// Whether the set is empty.
+    pub fn is_empty(self) -> bool {
+        self.0 == 0
+    }
+    /// Axes in both sets.
+    pub fn intersection(self, other: AxisSet) -> AxisSet {
+        AxisSet(self.0 & other.0)
+    }
+    /// Axes in `self` but not in `other`.
+    pub fn difference(self, other: AxisSet) -> AxisSet {
+        AxisSet(self.0 & !other.0)
+    }
+    /// Axes in either set.
+    pub fn union(self, other: AxisSet) -> AxisSet {
+        AxisSet(self.0 | other.0)
+    }
+    /// The axes in index order.
+    pub fn iter(self) -> impl Iterator<Item = Axis> {
+        Axis::ALL.into_iter().filter(move |a| self.contains(*a))
+    }
+}
+
+impl FromIterator<Axis> for AxisSet {
+    fn from_iter<I: IntoIterator<Item = Axis>>(iter: I) -> Self {
+        let mut set = AxisSet::EMPTY;
+        for a in iter {
+            set.insert(a);
+        }
+        set
+    }
+}
+
+/// A joint vector: one value per axis, with the set of axes whose value is known.
+///
+/// Values of unknown axes are meaningless (kept at 0) and never printed.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Joints {
+    /// Values in mm (linear) or degrees (rotary), indexed by [`Axis::index`].
+    pub values: [f64; AXIS_COUNT],
+    /// Axes whose value is known.
+    pub known: AxisSet,
+}
+
+impl Joints {
+    /// The value of `axis`, if known.
+    pub fn get(&self, axis: Axis) -> Option<f64> {
+        self.known
+            .contains(axis)
+            .then(|| self.values[axis.index()])
+    }
+    /// Sets `axis` to a known value.
+    pub fn set(&mut self, axis: Axis, value: f64) {
+        self.values[axis.index()] = value;
+        self.known.insert(axis);
+    }
+    /// Forgets the value of the axes in `axes`.
+    pub fn forget(&mut self, axes: AxisSet) {
+        for a in axes.iter() {
+            self.values[a.index()] = 0.0;
+        }
+        self.known = self.known.difference(axes);
+    }
+    /// The X, Y, Z values as a point, unknown ones as 0.
+    pub fn xyz(&self) -> Point3<f64> {
+        Point3::new(self.values[0], self.values[1], self.values[2])
+    }
+}
+
+/// A tool pose in the part frame, before inverse kinematics.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pose {
+    /// Tool tip point, mm.
+    pub tip: Point3<f64>,
+    /// Unit tool axis, pointing from the tip into the spindle.
+    pub axis: Unit<Vector3<f64>>,
+    /// Axes not covered by the pose (the extruder, secondary linears).
+    pub extra: Joints,
+}
+
+/// Where a motion goes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Target {
+    /// Machine axis values (G-code input, or after inverse kinematics).
+    Joints(Joints),
+    /// A tool pose (CL input, before inverse kinematics).
+    Pose(Pose),
+}
+
+impl Target {
+    /// The joint vector, if this target is one.
+    pub fn joints(&self) -> Option<&Joints> {
+        match self {
+            Target::Joints(j) => Some(j),
+            Target::Pose(_) => None,
+        }
+    }
+    /// The joint vector, mutably.
+    pub fn joints_mut(&mut self) -> Option<&mut Joints> {
+        match self {
+            Target::Joints(j) => Some(j),
+            Target::Pose(_) => None,
+        }
+    }
+}
+
+/// The plane an arc lies in (G17, G18, G19).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Plane {
+    /// G17: first axis X, second Y, normal Z.
+    XY,
+    /// G18: first axis Z, second X, normal Y.
+    ZX,
+    /// G19: first axis Y, second Z, normal X.
+    YZ,
+}
+
+impl Plane {
+    /// The (first, second, normal) axes; clockwise is seen from the normal's positive side.
+    pub fn axes(self) -> (Axis, Axis, Axis) {
+        match self {
+            Plane::XY => (Axis::X, Axis::Y, Axis::Z),
+            Plane::ZX => (Axis::Z, Axis::X, Axis::Y),
+            Plane::YZ => (Axis::Y, Axis::Z, Axis::X),
+        }
+    }
+    /// The G-code that selects the plane.
+    pub fn gcode(self) -> &'static str {
+        match self {
+            Plane::XY => "G17",
+            Plane::ZX => "G18",
+            Plane::YZ => "G19",
+        }
+    }
+}
+
+/// A circular (or helical) arc.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Arc {
+    /// G2 (true) or G3.
+    pub clockwise: bool,
+    /// The arc's plane.
+    pub plane: Plane,
+    /// Absolute centre (X, Y, Z; the component along the plane normal is unused), mm.
+    pub center: Vector3<f64>,
+    /// Full turns in addition to the partial arc (`P` minus one); 0 for a plain arc.
+    pub extra_turns: u32,
+}
+
+/// Kind of a motion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum MotionKind {
+    /// G0.
+    Rapid,
+    /// G1.
+    Linear,
+    /// G2 or G3.
+    Arc(Arc),
+}
+
+/// How F is interpreted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum FeedMode {
+    /// G94: mm/min (deg/min when only rotary axes move).
+    PerMinute,
+    /// G93: the move takes 1/F minutes.
+    InverseTime,
+    /// G95: mm per spindle revolution.
+    PerRevolution,
+}
+
+/// The feed in force for a motion.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Feed {
+    /// Feed mode.
+    pub mode: FeedMode,
+    /// The rate in the mode's unit (converted to mm), if one has been set.
+    pub rate: Option<f64>,
+}
+
+/// A move.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Motion {
+    /// Rapid, linear or arc.
+    pub kind: MotionKind,
+    /// The absolute target.
+    pub target: Target,
+    /// Feed in force.
+    pub feed: Feed,
+    /// Axes the source named on this block (kept so a move that changes nothing stays a
+    /// move).
+    pub written: AxisSet,
+    /// G53: the target is in machine coordinates; afterwards the written axes are unknown
+    /// in the program frame.
+    pub machine_frame: bool,
+    /// Words that ride on the move and are passed through as written (`S` laser power,
+    /// `M63 P1`, tool vectors `I J K` under G43.5, ...), upper-case letters.
+    pub extra: String,
+}
+
+/// A G92-family offset change.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OffsetChange {
+    /// Which code: `G92`, `G92.1`, `G92.2` or `G92.3`.
+    pub code: OffsetCode,
+    /// For G92: the program-frame values declared for the written axes.
+    pub declared: Joints,
+    /// The offsets in force afterwards (program = IR + offset), per axis.
+    pub offsets: [f64; AXIS_COUNT],
+}
+
+/// The G92 family.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OffsetCode {
+    /// G92: declare the current position.
+    Set,
+    /// G92.1: clear offsets (and forget them).
+    Clear,
+    /// G92.2: suspend offsets.
+    Suspend,
+    /// G92.3: restore suspended offsets.
+    Restore,
+}
+
+impl OffsetCode {
+    /// The G-code.
+    pub fn gcode(self) -> &'static str {
+        match self {
+            OffsetCode::Set => "G92",
+            OffsetCode::Clear => "G92.1",
+            OffsetCode::Suspend => "G92.2",
+            OffsetCode::Restore => "G92.3",
+        }
+    }
+}
+
+/// Controller modes a pass-through command was written in, so the backend can put the
+/// controller into them before printing it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct WrittenModes {
+    /// The command has axis words written in inches (G20).
+    pub inch: bool,
+    /// The command has axis words written in relative mode (G91).
+    pub relative: bool,
+    /// Extruder words were relative (M83).
+    pub relative_e: bool,
+}
+
+/// A command the IR does not model, kept as its words (`M3 S12000`, `T2 M6`, `G28 X Y`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Command {
+    /// The words as written, separated by single spaces, without line number,
+    /// checksum or comments.
+    pub text: String,
+    /// Modes its axis words were written in (default when it has none).
+    pub modes: WrittenModes,
+    /// Axes whose position is unknown after it (homing, probing, macro calls).
+    pub clobbers: AxisSet,
+}
+
+/// Why a line travels as text.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VerbatimReason {
+    /// Parameters, expressions or dialect statements the IR does not evaluate.
+    Unevaluated,
+    /// Control flow (o-words, RepRapFirmware meta commands) or a line inside it.
+    ControlFlow,
+    /// A subprogram body (Fanuc `O` program after the main program).
+    Subprogram,
+    /// The `%` tape delimiter or an `O` program number.
+    Delimiter,
+}
+
+/// A line passed through exactly as written.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Verbatim {
+    /// The source line, without its terminator.
+    pub text: String,
+    /// Why it was not lowered.
+    pub reason: VerbatimReason,
+    /// Axes whose position is unknown after it.
+    pub clobbers: AxisSet,
+    /// For a line at the top level: the modes it was written in, which the backend
+    /// establishes before printing it. `None` inside control flow or a subprogram,
+    /// where nothing may be inserted.
+    pub modes: Option<WrittenModes>,
+    /// The line changes none of units, distance and extruder modes.
+    pub keeps_modes: bool,
+}
+
+/// How a comment was written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CommentStyle {
+    /// `( ... )`.
+    Paren,
+    /// `; ...`.
+    Semicolon,
+}
+
+/// A comment; `text` excludes the delimiters.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Comment {
+    /// The comment text.
+    pub text: String,
+    /// How it was written.
+    pub style: CommentStyle,
+}
+
+/// What a block does.
+#[derive(Debug, Clone, PartialEq)]
+pub enum BlockKind {
+    /// A move.
+    Motion(Motion),
+    /// G4: wait.
+    Dwell {
+        /// Seconds.
+        seconds: f64,
+    },
+    /// G92 family.
+    Offset(OffsetChange),
+    /// A command passed through as words.
+    Command(Command),
+    /// A line passed through as text.
+    Verbatim(Verbatim),
+    /// A line that holds only comments (they are in [`Block::comments`]).
+    Comment,
+}
+
+/// One statement of the program.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Block {
+    /// The source line.
+    pub span: Span,
+    /// What it does.
+    pub kind: BlockKind,
+    /// Comments written on the line, in order.
+    pub comments: Vec<Comment>,
+}
+
+impl Block {
+    /// A block with no comments.
+    pub fn new(span: Span, kind: BlockKind) -> Block {
+        Block {
+            span,
+            kind,
+            comments: Vec::new(),
+        }
+    }
+}

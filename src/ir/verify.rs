@@ -1,0 +1,105 @@
+//! Checks the IR invariants listed in [`crate::ir`] on a block stream.
+
+use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
+
+/// Streaming verifier: feed it blocks in order; it returns the first broken invariant
+/// of each block.
+///
+/// ```
+/// use ncpost::front::gcode::{parse_str, Options};
+/// use ncpost::ir::verify::Verifier;
+/// let p = parse_str("G0 X0 Y0\nG2 X10 Y0 I5 J0 F100\n", &Options::default()).unwrap();
+/// let mut v = Verifier::default();
+/// assert!(p.blocks.iter().all(|b| v.check(b).is_ok()));
+/// ```
+#[derive(Debug, Default, Clone)]
+pub struct Verifier {
+    blocks: u64,
+}
+
+impl Verifier {
+    /// Checks one block; `Err` names the broken invariant.
+    pub fn check(&mut self, block: &Block) -> Result<(), String> {
+        self.blocks += 1;
+        if block.span.line == 0 {
+            return Err("block has no source line (invariant 1)".into());
+        }
+        for c in &block.comments {
+            if c.text.contains('\n') {
+                return Err("comment text holds a line break".into());
+            }
+        }
+        match &block.kind {
+            BlockKind::Motion(m) => {
+                let joints = match &m.target {
+                    Target::Joints(j) => *j,
+                    Target::Pose(p) => {
+                        if !(p.tip.coords.iter().all(|v| v.is_finite())) {
+                            return Err("pose tip is not finite (invariant 6)".into());
+                        }
+                        if (p.axis.norm() - 1.0).abs() > 1e-9 {
+                            return Err("pose tool axis is not a unit vector (invariant 4)".into());
+                        }
+                        p.extra
+                    }
+                };
+                check_joints(&joints)?;
+                if let Some(r) = m.feed.rate
+                    && !(r.is_finite() && r >= 0.0)
+                {
+                    return Err(format!("feed {r} is not a finite non-negative number"));
+                }
+                if let MotionKind::Arc(arc) = m.kind
+                    && !arc.center.iter().all(|v| v.is_finite())
+                {
+                    return Err("arc centre is not finite (invariant 6)".into());
+                }
+            }
+            BlockKind::Dwell { seconds } => {
+                if !(seconds.is_finite() && *seconds >= 0.0) {
+                    return Err(format!("dwell {seconds} is not a finite non-negative time"));
+                }
+            }
+            BlockKind::Offset(o) => {
+                check_joints(&o.declared)?;
+                if !o.offsets.iter().all(|v| v.is_finite()) {
+                    return Err("offsets are not finite (invariant 6)".into());
+                }
+            }
+            BlockKind::Command(c) => {
+                if c.text.contains('\n') {
+                    return Err("command text holds a line break".into());
+                }
+            }
+            BlockKind::Verbatim(v) => {
+                if v.text.contains('\n') {
+                    return Err("verbatim text holds a line break".into());
+                }
+            }
+            BlockKind::Comment => {
+                if block.comments.is_empty() {
+                    return Err("comment block without a comment (invariant 5)".into());
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Blocks checked so far.
+    pub fn checked(&self) -> u64 {
+        self.blocks
+    }
+}
+
+fn check_joints(j: &Joints) -> Result<(), String> {
+    for a in Axis::ALL {
+        let v = j.values[a.index()];
+        if !v.is_finite() {
+            return Err(format!("{} is not finite (invariant 6)", a.letter()));
+        }
+        if !j.known.contains(a) && v != 0.0 {
+            return Err(format!("unknown axis {} holds a value (invariant 3)", a.letter()));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,358 @@
+//! The `ncpost` command line.
+
+use std::collections::HashMap;
+use std::fs::File;
+use std::io::{self, BufReader, IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+use ncpost::diag::{Diagnostic, Severity};
+use ncpost::passes;
+use ncpost::pipeline::{Builder, Pipeline, Summary};
+use ncpost::preset::{BUILTIN, Emit, Preset};
+
+/// Compiles NC programs: G-code in, RepRapFirmware or plain G-code out.
+#[derive(Parser)]
+#[command(name = "ncpost", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Compile INPUT and write the result.
+    Run(RunArgs),
+    /// Read INPUT and report diagnostics only; write nothing.
+    Check(PipelineArgs),
+    /// List the passes with their options.
+    Passes,
+    /// List the built-in presets.
+    Presets,
+}
+
+#[derive(Args)]
+struct RunArgs {
+    #[command(flatten)]
+    pipeline: PipelineArgs,
+    /// Output format (overrides the preset).
+    #[arg(long, value_enum)]
+    emit: Option<EmitArg>,
+    /// Output file; `-` or absent for standard output.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
+    /// Print the IR after pass NAME (or `front`) to standard error.
+    #[arg(long, value_name = "PASS")]
+    dump_after: Option<String>,
+}
+
+#[derive(Args)]
+struct PipelineArgs {
+    /// A built-in preset name or a preset file.
+    #[arg(long, conflicts_with = "config")]
+    preset: Option<String>,
+    /// A preset file.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+    /// A pass `NAME[:key=value,...]`: sets the options of a pass the preset has,
+    /// otherwise appends it. Repeatable.
+    #[arg(long = "pass", value_name = "SPEC")]
+    passes: Vec<String>,
+    /// Input language (default: from the file extension).
+    #[arg(long, value_enum)]
+    from: Option<FromArg>,
+    /// Show errors only.
+    #[arg(short, long)]
+    quiet: bool,
+    /// How diagnostics are printed.
+    #[arg(long, value_enum, default_value = "human")]
+    message_format: MessageFormat,
+    /// The input file, or `-` for standard input.
+    input: PathBuf,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum EmitArg {
+    Rrf,
+    Gcode,
+    Ir,
+}
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+enum FromArg {
+    Gcode,
+    Cl,
+    Hpgl,
+}
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+enum MessageFormat {
+    Human,
+    Json,
+}
+
+/// Exit codes: input errors and usage errors.
+const EXIT_INPUT: u8 = 1;
+const EXIT_USAGE: u8 = 2;
+
+/// Warnings of one code shown before the rest are only counted.
+const WARNINGS_PER_CODE: usize = 10;
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Passes => {
+            for p in passes::REGISTRY {
+                println!("{:<12} {}", p.name, p.summary);
+                let defaults = (p.defaults)();
+                for line in defaults.lines() {
+                    println!("{:<12}   {line}", "");
+                }
+            }
+            ExitCode::SUCCESS
+        }
+        Command::Presets => {
+            for (name, _) in BUILTIN {
+                let desc = Preset::builtin(name).map(|p| p.description).unwrap_or_default();
+                println!("{name:<12} {desc}");
+            }
+            ExitCode::SUCCESS
+        }
+        Command::Run(args) => run(
+            &args.pipeline,
+            false,
+            args.emit,
+            args.output.as_deref(),
+            args.dump_after.as_deref(),
+        ),
+        Command::Check(args) => run(&args, true, None, None, None),
+    }
+}
+
+fn usage(msg: impl std::fmt::Display) -> ExitCode {
+    eprintln!("error: {msg}");
+    ExitCode::from(EXIT_USAGE)
+}
+
+/// Runs the pipeline; with `check_only` the output is discarded.
+fn run(
+    args: &PipelineArgs,
+    check_only: bool,
+    emit: Option<EmitArg>,
+    output: Option<&Path>,
+    dump_after: Option<&str>,
+) -> ExitCode {
+    let builder = match builder(args, emit, dump_after) {
+        Ok(b) => b,
+        Err(e) => return usage(e),
+    };
+    let from = args.from.unwrap_or_else(|| from_extension(&args.input));
+    match from {
+        FromArg::Gcode => {}
+        FromArg::Cl => return usage("the APT/CL frontend is not part of this version yet; give G-code input (--from gcode)"),
+        FromArg::Hpgl => return usage("the HPGL frontend is not part of this version yet; give G-code input (--from gcode)"),
+    }
+    let mut pipeline = match builder.build() {
+        Ok(p) => p,
+        Err(e) => return usage(e),
+    };
+
+    let stdin_input = args.input.as_os_str() == "-";
+    let file_name = if stdin_input { "<stdin>".to_string() } else { args.input.display().to_string() };
+    let input: Box<dyn io::BufRead> = if stdin_input {
+        Box::new(io::stdin().lock())
+    } else {
+        match File::open(&args.input) {
+            Ok(f) => Box::new(BufReader::with_capacity(1 << 16, f)),
+            Err(e) => return usage(format!("cannot open {}: {e}", args.input.display())),
+        }
+    };
+
+    let mut printer = Printer::new(&file_name, args.quiet, args.message_format);
+    if !stdin_input && !args.quiet && io::stderr().is_terminal() {
+        attach_progress(&mut pipeline, &args.input);
+    }
+
+    let result = if check_only {
+        pipeline.run_gcode(input, io::sink(), &mut |d| printer.print(d))
+    } else {
+        match output.filter(|o| o.as_os_str() != "-") {
+            None => pipeline.run_gcode(input, io::stdout().lock(), &mut |d| printer.print(d)),
+            Some(path) => {
+                if !stdin_input && same_file(&args.input, path) {
+                    return usage(format!("{} is the input; choose another output file", path.display()));
+                }
+                return write_atomically(
+                    path,
+                    |out, printer| pipeline.run_gcode(input, out, &mut |d| printer.print(d)),
+                    &mut printer,
+                );
+            }
+        }
+    };
+    finish(result, &mut printer)
+}
+
+fn finish(result: Result<Summary, Diagnostic>, printer: &mut Printer) -> ExitCode {
+    let code = match result {
+        Ok(s) if s.errors == 0 => ExitCode::SUCCESS,
+        Ok(_) => ExitCode::from(EXIT_INPUT),
+        Err(d) => {
+            printer.print(d);
+            ExitCode::from(EXIT_INPUT)
+        }
+    };
+    printer.close();
+    code
+}
+
+/// Writes to a temporary file beside `path` and renames it over `path` only on success.
+fn write_atomically(
+    path: &Path,
+    body: impl FnOnce(&mut File, &mut Printer) -> Result<Summary, Diagnostic>,
+    printer: &mut Printer,
+) -> ExitCode {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let mut tmp = match tempfile::Builder::new().prefix(".ncpost-").suffix(".tmp").tempfile_in(&dir) {
+        Ok(t) => t,
+        Err(e) => return usage(format!("cannot create a temporary file in {}: {e}", dir.display())),
+    };
+    let result = body(tmp.as_file_mut(), printer);
+    let ok = matches!(result, Ok(s) if s.errors == 0);
+    let code = finish(result, printer);
+    if ok {
+        if let Err(e) = tmp.as_file_mut().sync_all().and_then(|_| tmp.persist(path).map(|_| ()).map_err(|e| e.error)) {
+            eprintln!("error: cannot write {}: {e}", path.display());
+            return ExitCode::from(EXIT_INPUT);
+        }
+    }
+    // On failure the temporary file is removed when `tmp` drops; `path` is untouched.
+    code
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+fn builder(args: &PipelineArgs, emit: Option<EmitArg>, dump_after: Option<&str>) -> Result<Builder, String> {
+    let mut b = Pipeline::builder();
+    if let Some(path) = &args.config {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        b = b.preset(Preset::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))?);
+    } else {
+        b = b.preset_name(args.preset.as_deref().unwrap_or("default"))?;
+    }
+    for spec in &args.passes {
+        let (name, table) = passes::parse_spec(spec)?;
+        if passes::lookup(&name).is_none() {
+            let names: Vec<&str> = passes::REGISTRY.iter().map(|p| p.name).collect();
+            return Err(format!("unknown pass `{name}`; the passes are: {}", names.join(", ")));
+        }
+        b = b.pass(&name, table);
+    }
+    if let Some(e) = emit {
+        b = b.emit(match e {
+            EmitArg::Rrf => Emit::Rrf,
+            EmitArg::Gcode => Emit::Gcode,
+            EmitArg::Ir => Emit::Ir,
+        });
+    }
+    if let Some(name) = dump_after {
+        b = b.dump_after(name, Box::new(io::stderr()));
+    }
+    Ok(b)
+}
+
+fn from_extension(path: &Path) -> FromArg {
+    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    match ext.as_str() {
+        "cl" | "apt" | "cls" | "clsf" => FromArg::Cl,
+        "hpgl" | "plt" | "hpg" => FromArg::Hpgl,
+        _ => FromArg::Gcode,
+    }
+}
+
+fn attach_progress(pipeline: &mut Pipeline, input: &Path) {
+    const LARGE: u64 = 16 << 20;
+    let Ok(meta) = std::fs::metadata(input) else { return };
+    if meta.len() < LARGE {
+        return;
+    }
+    let bar = indicatif::ProgressBar::new(meta.len());
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{bar:40} {bytes}/{total_bytes} {bytes_per_sec} eta {eta}")
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+    );
+    pipeline.on_progress(Box::new(move |n| {
+        bar.set_position(n);
+        if n >= bar.length().unwrap_or(u64::MAX) {
+            bar.finish_and_clear();
+        }
+    }));
+}
+
+/// Prints diagnostics to standard error, limiting repeated warnings.
+struct Printer {
+    file: String,
+    quiet: bool,
+    format: MessageFormat,
+    fancy: bool,
+    shown: HashMap<&'static str, usize>,
+    hidden: HashMap<&'static str, usize>,
+}
+
+impl Printer {
+    fn new(file: &str, quiet: bool, format: MessageFormat) -> Self {
+        Printer {
+            file: file.to_string(),
+            quiet,
+            format,
+            fancy: io::stderr().is_terminal(),
+            shown: HashMap::new(),
+            hidden: HashMap::new(),
+        }
+    }
+
+    fn print(&mut self, d: Diagnostic) {
+        if self.quiet && d.severity != Severity::Error {
+            return;
+        }
+        let mut err = io::stderr().lock();
+        if self.format == MessageFormat::Json {
+            let _ = writeln!(err, "{}", d.to_json(&self.file));
+            return;
+        }
+        if d.severity == Severity::Warning {
+            let n = self.shown.entry(d.code).or_default();
+            if *n >= WARNINGS_PER_CODE {
+                *self.hidden.entry(d.code).or_default() += 1;
+                return;
+            }
+            *n += 1;
+        }
+        if d.severity == Severity::Note {
+            let _ = writeln!(err, "{}", d.message);
+            return;
+        }
+        let _ = write!(err, "{}", d.render(&self.file, self.fancy));
+    }
+
+    fn close(&mut self) {
+        if self.format == MessageFormat::Json {
+            return;
+        }
+        let mut hidden: Vec<_> = self.hidden.iter().collect();
+        hidden.sort();
+        for (code, n) in hidden {
+            eprintln!("note: {n} more warnings [{code}] not shown");
+        }
+        self.hidden.clear();
+    }
+}

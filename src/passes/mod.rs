@@ -1,0 +1,126 @@
+//! Passes: IR blocks in, IR blocks out, one block at a time.
+//!
+//! Every pass lives in its own file, has a kebab-case name, an options struct
+//! (serde, `deny_unknown_fields`) and a one-line summary, and is listed in [`REGISTRY`],
+//! which is also where the command line gets its list of valid names.
+
+pub mod stats;
+pub mod verify;
+
+use serde::de::DeserializeOwned;
+
+use crate::diag::Diagnostic;
+use crate::ir::Block;
+
+/// Where a pass puts its output.
+pub struct Output<'a> {
+    pub(crate) blocks: &'a mut Vec<Block>,
+    pub(crate) diags: &'a mut Vec<Diagnostic>,
+}
+
+impl<'a> Output<'a> {
+    /// An output writing to `blocks` and `diags`.
+    pub fn new(blocks: &'a mut Vec<Block>, diags: &'a mut Vec<Diagnostic>) -> Self {
+        Output { blocks, diags }
+    }
+    /// Passes a block on.
+    pub fn push(&mut self, block: Block) {
+        self.blocks.push(block);
+    }
+    /// Reports a diagnostic.
+    pub fn diag(&mut self, diag: Diagnostic) {
+        self.diags.push(diag);
+    }
+}
+
+/// A transformation over the block stream.
+///
+/// A pass may hold back a bounded number of blocks (look-ahead) and must release them
+/// in [`Pass::finish`].
+pub trait Pass {
+    /// The kebab-case name, as in [`REGISTRY`].
+    fn name(&self) -> &'static str;
+    /// Consumes one block and pushes zero or more blocks.
+    fn run(&mut self, block: Block, out: &mut Output<'_>);
+    /// Called once after the last block.
+    fn finish(&mut self, _out: &mut Output<'_>) {}
+}
+
+/// What the registry knows about a pass.
+pub struct PassInfo {
+    /// Kebab-case name used in presets and on the command line.
+    pub name: &'static str,
+    /// One-line description.
+    pub summary: &'static str,
+    /// Builds the pass from its options table.
+    pub build: fn(&toml::Table) -> Result<Box<dyn Pass>, String>,
+    /// The default options, as TOML.
+    pub defaults: fn() -> String,
+}
+
+/// Every pass, in the order `ncpost passes` lists them.
+pub const REGISTRY: &[PassInfo] = &[verify::INFO, stats::INFO];
+
+/// The registry entry for `name`.
+pub fn lookup(name: &str) -> Option<&'static PassInfo> {
+    REGISTRY.iter().find(|p| p.name == name)
+}
+
+/// Builds pass `name` with `options`.
+///
+/// ```
+/// let opts: toml::Table = toml::from_str("rapid_feed = 5000.0").unwrap();
+/// let pass = ncpost::passes::build("stats", &opts).unwrap();
+/// assert_eq!(pass.name(), "stats");
+/// assert!(ncpost::passes::build("stats", &toml::from_str("bogus = 1").unwrap()).is_err());
+/// ```
+pub fn build(name: &str, options: &toml::Table) -> Result<Box<dyn Pass>, String> {
+    let info = lookup(name).ok_or_else(|| {
+        let names: Vec<&str> = REGISTRY.iter().map(|p| p.name).collect();
+        format!("unknown pass `{name}`; the passes are: {}", names.join(", "))
+    })?;
+    (info.build)(options).map_err(|e| format!("options of pass `{name}`: {e}"))
+}
+
+/// Deserialises a pass's options struct from a table.
+pub fn options<T: DeserializeOwned>(table: &toml::Table) -> Result<T, String> {
+    toml::Value::Table(table.clone())
+        .try_into()
+        .map_err(|e: toml::de::Error| e.message().to_string())
+}
+
+/// TOML text of a value (for `ncpost passes` and presets).
+pub fn to_toml<T: serde::Serialize>(value: &T) -> String {
+    toml::to_string(value).unwrap_or_default()
+}
+
+/// Parses a command-line pass spec `NAME[:key=value,...]` into the name and a table.
+/// Values are TOML literals (`1.5`, `true`, `"text"`); a bare word is taken as a string.
+///
+/// ```
+/// let (name, t) = ncpost::passes::parse_spec("stats:rapid_feed=6000,label=x").unwrap();
+/// assert_eq!(name, "stats");
+/// assert_eq!(t["rapid_feed"].as_integer(), Some(6000));
+/// assert_eq!(t["label"].as_str(), Some("x"));
+/// ```
+pub fn parse_spec(spec: &str) -> Result<(String, toml::Table), String> {
+    let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
+    let name = name.trim();
+    if name.is_empty() {
+        return Err(format!("`{spec}` has no pass name"));
+    }
+    let mut table = toml::Table::new();
+    for pair in rest.split(',').filter(|p| !p.trim().is_empty()) {
+        let (key, value) = pair
+            .split_once('=')
+            .ok_or_else(|| format!("`{pair}` is not key=value"))?;
+        let key = key.trim();
+        let value = value.trim();
+        let parsed = toml::from_str::<toml::Table>(&format!("v = {value}"))
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .unwrap_or_else(|| toml::Value::String(value.to_string()));
+        table.insert(key.to_string(), parsed);
+    }
+    Ok((name.to_string(), table))
+}

@@ -1,0 +1,48 @@
+//! `verify`: checks the IR invariants on every block and stops the run on a violation.
+
+use serde::{Deserialize, Serialize};
+
+use super::{Output, Pass, PassInfo};
+use crate::diag::Diagnostic;
+use crate::ir::Block;
+use crate::ir::verify::Verifier;
+
+/// Options of `verify`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Options {}
+
+/// The `verify` pass.
+pub struct Verify {
+    verifier: Verifier,
+}
+
+/// Registry entry.
+pub const INFO: PassInfo = PassInfo {
+    name: "verify",
+    summary: "check the IR invariants (spans, finite numbers, known axes, unit tool axes)",
+    build: |t| {
+        let _: Options = super::options(t)?;
+        Ok(Box::new(Verify {
+            verifier: Verifier::default(),
+        }))
+    },
+    defaults: || super::to_toml(&Options::default()),
+};
+
+impl Pass for Verify {
+    fn name(&self) -> &'static str {
+        "verify"
+    }
+
+    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+        if let Err(e) = self.verifier.check(&block) {
+            out.diag(
+                Diagnostic::error("ir::invariant", format!("IR invariant broken: {e}"))
+                    .at_span(block.span)
+                    .with_help("a pass before this one produced an invalid block; please report it"),
+            );
+        }
+        out.push(block);
+    }
+}

@@ -1,0 +1,290 @@
+//! The pipeline: frontend → passes → backend, block by block.
+
+use std::io::{BufRead, Write};
+
+use crate::back::{self, Backend};
+use crate::diag::{Diagnostic, Severity};
+use crate::front::{self, Frontend};
+use crate::ir::{Block, dump};
+use crate::passes::{self, Output, Pass};
+use crate::preset::{Emit, PassSpec, Preset};
+
+/// Counts of a finished run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Summary {
+    /// Blocks the frontend produced.
+    pub blocks_in: u64,
+    /// Blocks the backend received.
+    pub blocks_out: u64,
+    /// Errors reported.
+    pub errors: u64,
+    /// Warnings reported.
+    pub warnings: u64,
+}
+
+/// Builds a [`Pipeline`] from a preset, extra passes and overrides.
+///
+/// ```
+/// use ncpost::pipeline::Pipeline;
+/// use ncpost::preset::Emit;
+/// let mut pipeline = Pipeline::builder()
+///     .preset_name("duet-cnc").unwrap()
+///     .pass("stats", toml::Table::new())
+///     .emit(Emit::Rrf)
+///     .build()
+///     .unwrap();
+/// let mut out = Vec::new();
+/// let mut notes = Vec::new();
+/// let summary = pipeline
+///     .run_gcode("G0 X1\nG1 X2 F600\n".as_bytes(), &mut out, &mut |d| notes.push(d))
+///     .unwrap();
+/// assert_eq!(summary.errors, 0);
+/// assert_eq!(String::from_utf8(out).unwrap(), "G21 G90\nG0 X1\nG94\nG1 X2 F600\n");
+/// assert!(notes[0].message.starts_with("stats:"));
+/// ```
+#[derive(Default)]
+pub struct Builder {
+    preset: Preset,
+    dump_after: Option<String>,
+    dump: Option<Box<dyn Write>>,
+}
+
+/// A configured pipeline, ready to run.
+pub struct Pipeline {
+    preset: Preset,
+    passes: Vec<Box<dyn Pass>>,
+    /// Dump point: 0 after the frontend, i + 1 after pass i.
+    dump_at: Option<usize>,
+    dump: Option<Box<dyn Write>>,
+    progress: Option<Box<dyn FnMut(u64)>>,
+}
+
+impl Builder {
+    /// Starts from `preset`.
+    pub fn preset(mut self, preset: Preset) -> Self {
+        self.preset = preset;
+        self
+    }
+
+    /// Starts from a built-in preset or a preset file.
+    pub fn preset_name(self, name: &str) -> Result<Self, String> {
+        Ok(self.preset(Preset::load(name)?))
+    }
+
+    /// Adds pass `name`; if the preset already has it, sets its options instead.
+    pub fn pass(mut self, name: &str, options: toml::Table) -> Self {
+        match self.preset.passes.iter_mut().find(|p| p.name == name) {
+            Some(p) => p.options.extend(options),
+            None => self.preset.passes.push(PassSpec {
+                name: name.to_string(),
+                options,
+            }),
+        }
+        self
+    }
+
+    /// Sets the output format.
+    pub fn emit(mut self, emit: Emit) -> Self {
+        self.preset.emit = emit;
+        self
+    }
+
+    /// Writes the IR dump after pass `name` (or `front`, after the frontend) to `out`.
+    pub fn dump_after(mut self, name: &str, out: Box<dyn Write>) -> Self {
+        self.dump_after = Some(name.to_string());
+        self.dump = Some(out);
+        self
+    }
+
+    /// The preset as configured so far.
+    pub fn preset_ref(&self) -> &Preset {
+        &self.preset
+    }
+
+    /// Builds the passes; fails on an unknown pass, bad options or dump point.
+    pub fn build(self) -> Result<Pipeline, String> {
+        let mut passes = Vec::new();
+        for spec in &self.preset.passes {
+            passes.push(passes::build(&spec.name, &spec.options)?);
+        }
+        let dump_at = match &self.dump_after {
+            None => None,
+            Some(n) if n == "front" => Some(0),
+            Some(n) => Some(
+                self.preset
+                    .passes
+                    .iter()
+                    .position(|p| p.name == *n)
+                    .map(|i| i + 1)
+                    .ok_or_else(|| {
+                        format!("--dump-after {n}: the pipeline has no pass `{n}` (use `front` for the frontend's output)")
+                    })?,
+            ),
+        };
+        Ok(Pipeline {
+            preset: self.preset,
+            passes,
+            dump_at,
+            dump: self.dump,
+            progress: None,
+        })
+    }
+}
+
+impl Pipeline {
+    /// A builder starting from the default (empty) preset.
+    pub fn builder() -> Builder {
+        Builder::default()
+    }
+
+    /// The preset this pipeline was built from.
+    pub fn preset(&self) -> &Preset {
+        &self.preset
+    }
+
+    /// Calls `f` with the number of input bytes read, now and then during a run.
+    pub fn on_progress(&mut self, f: Box<dyn FnMut(u64)>) {
+        self.progress = Some(f);
+    }
+
+    /// Reads G-code from `input` and writes the preset's output format to `output`.
+    /// Diagnostics go to `on_diag` as they occur. `Err` only for I/O failures of the
+    /// writer; input errors are counted in the summary.
+    pub fn run_gcode(
+        &mut self,
+        input: impl BufRead,
+        output: impl Write,
+        on_diag: &mut dyn FnMut(Diagnostic),
+    ) -> Result<Summary, Diagnostic> {
+        let mut front = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
+        let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
+        let mut backend: Box<dyn Backend + '_> = match self.preset.emit {
+            Emit::Rrf => Box::new(back::rrf::Writer::new(&mut out, &self.preset.rrf)),
+            Emit::Gcode => Box::new(back::gcode::Writer::new(&mut out, &self.preset.gcode)),
+            Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
+        };
+        let summary = self.run(&mut front, backend.as_mut(), on_diag);
+        drop(backend);
+        out.flush().map_err(back::io_error)?;
+        Ok(summary)
+    }
+
+    /// Runs `front` through the passes into `back`.
+    pub fn run(
+        &mut self,
+        front: &mut dyn Frontend,
+        back: &mut dyn Backend,
+        on_diag: &mut dyn FnMut(Diagnostic),
+    ) -> Summary {
+        let mut summary = Summary::default();
+        let mut diags = Vec::new();
+        let mut cur: Vec<Block> = Vec::with_capacity(8);
+        let mut next: Vec<Block> = Vec::with_capacity(8);
+        let mut counter = 0u32;
+        loop {
+            let block = front.next_block(&mut diags);
+            let Some(block) = block else { break };
+            summary.blocks_in += 1;
+            cur.push(block);
+            self.flow(0, &mut cur, &mut next, &mut diags, back, &mut summary);
+            report(&mut diags, on_diag, &mut summary);
+            counter += 1;
+            if counter == 1 << 14 {
+                counter = 0;
+                if let Some(p) = &mut self.progress {
+                    p(front.bytes_read());
+                }
+            }
+        }
+        report(&mut diags, on_diag, &mut summary);
+        for i in 0..self.passes.len() {
+            self.passes[i].finish(&mut Output::new(&mut cur, &mut diags));
+            self.flow(i + 1, &mut cur, &mut next, &mut diags, back, &mut summary);
+        }
+        if let Err(d) = back.finish() {
+            diags.push(d);
+        }
+        if let Some(d) = &mut self.dump {
+            let _ = d.flush();
+        }
+        report(&mut diags, on_diag, &mut summary);
+        summary
+    }
+
+    /// Sends the blocks in `cur` through passes `from..` and the backend.
+    fn flow(
+        &mut self,
+        from: usize,
+        cur: &mut Vec<Block>,
+        next: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+        back: &mut dyn Backend,
+        summary: &mut Summary,
+    ) {
+        if self.dump_at == Some(from) {
+            self.dump_blocks(cur);
+        }
+        for i in from..self.passes.len() {
+            let pass = &mut self.passes[i];
+            for b in cur.drain(..) {
+                pass.run(b, &mut Output::new(next, diags));
+            }
+            std::mem::swap(cur, next);
+            if self.dump_at == Some(i + 1) {
+                self.dump_blocks(cur);
+            }
+        }
+        for b in cur.drain(..) {
+            summary.blocks_out += 1;
+            if let Err(d) = back.write_block(&b, diags) {
+                diags.push(d);
+            }
+        }
+    }
+
+    fn dump_blocks(&mut self, blocks: &[Block]) {
+        if let Some(out) = &mut self.dump {
+            let mut s = String::new();
+            for b in blocks {
+                dump::write_block(&mut s, b);
+                s.push('\n');
+            }
+            let _ = out.write_all(s.as_bytes());
+        }
+    }
+}
+
+fn report(diags: &mut Vec<Diagnostic>, on_diag: &mut dyn FnMut(Diagnostic), summary: &mut Summary) {
+    for d in diags.drain(..) {
+        match d.severity {
+            Severity::Error => summary.errors += 1,
+            Severity::Warning => summary.warnings += 1,
+            Severity::Note => {}
+        }
+        on_diag(d);
+    }
+}
+
+/// Compiles G-code text with a preset and returns the output text, or every diagnostic
+/// if there was an error.
+///
+/// ```
+/// let preset = ncpost::preset::Preset::builtin("default").unwrap();
+/// let out = ncpost::pipeline::compile_str("G91\nG0 X1\nG0 X1\n", &preset).unwrap();
+/// assert_eq!(out, "G21 G90\nG0 X1\nG0 X2\n");
+/// ```
+pub fn compile_str(src: &str, preset: &Preset) -> Result<String, Vec<Diagnostic>> {
+    let mut pipeline = Pipeline::builder()
+        .preset(preset.clone())
+        .build()
+        .map_err(|e| vec![Diagnostic::error("pipeline::config", e)])?;
+    let mut diags = Vec::new();
+    let mut out = Vec::new();
+    let summary = pipeline
+        .run_gcode(src.as_bytes(), &mut out, &mut |d| diags.push(d))
+        .map_err(|d| vec![d])?;
+    if summary.errors > 0 {
+        return Err(diags);
+    }
+    Ok(String::from_utf8_lossy(&out).into_owned())
+}

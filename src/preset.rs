@@ -1,0 +1,95 @@
+//! Presets: a pipeline (frontend options, passes, backend and its options) in one TOML
+//! file. Built-in presets live in `passes/` and are embedded in the binary.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::back::{gcode, rrf};
+use crate::front;
+
+/// The output format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Emit {
+    /// RepRapFirmware 3.x.
+    Rrf,
+    /// Plain ISO/LinuxCNC G-code.
+    #[default]
+    Gcode,
+    /// The IR text dump.
+    Ir,
+}
+
+/// One pass of a preset.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PassSpec {
+    /// The pass name (see `ncpost passes`).
+    pub name: String,
+    /// Its options.
+    #[serde(default)]
+    pub options: toml::Table,
+}
+
+/// A pipeline definition.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Preset {
+    /// One line about what it is for.
+    pub description: String,
+    /// Output format.
+    pub emit: Emit,
+    /// Passes, in order.
+    pub passes: Vec<PassSpec>,
+    /// G-code frontend options.
+    pub gcode_input: front::gcode::Options,
+    /// Plain G-code backend options.
+    pub gcode: gcode::Options,
+    /// RepRapFirmware backend options.
+    pub rrf: rrf::Options,
+}
+
+/// Built-in presets: (name, TOML text).
+pub const BUILTIN: &[(&str, &str)] = &[
+    ("default", include_str!("../passes/default.toml")),
+    ("duet-cnc", include_str!("../passes/duet-cnc.toml")),
+];
+
+impl Preset {
+    /// Parses preset TOML text.
+    ///
+    /// ```
+    /// let p = ncpost::preset::Preset::from_toml("emit = \"rrf\"\n[[passes]]\nname = \"verify\"\n").unwrap();
+    /// assert_eq!(p.passes[0].name, "verify");
+    /// ```
+    pub fn from_toml(text: &str) -> Result<Preset, String> {
+        toml::from_str(text).map_err(|e| e.to_string())
+    }
+
+    /// A built-in preset by name.
+    pub fn builtin(name: &str) -> Option<Preset> {
+        BUILTIN
+            .iter()
+            .find(|(n, _)| *n == name)
+            .and_then(|(_, text)| Preset::from_toml(text).ok())
+    }
+
+    /// A built-in preset by name, or else a preset file at that path.
+    pub fn load(name_or_path: &str) -> Result<Preset, String> {
+        if let Some(p) = Preset::builtin(name_or_path) {
+            return Ok(p);
+        }
+        let path = Path::new(name_or_path);
+        if path.exists() {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| format!("cannot read preset {name_or_path}: {e}"))?;
+            return Preset::from_toml(&text).map_err(|e| format!("preset {name_or_path}: {e}"));
+        }
+        let names: Vec<&str> = BUILTIN.iter().map(|(n, _)| *n).collect();
+        Err(format!(
+            "no preset `{name_or_path}`: not a built-in ({}) and no such file",
+            names.join(", ")
+        ))
+    }
+}
