@@ -77,6 +77,14 @@ fn g_group(code: Code) -> Option<&'static str> {
     })
 }
 
+/// Modal G codes that neither move nor take axis words.
+fn g_known_modal(code: Code) -> bool {
+    matches!(
+        code,
+        (17..=21 | 40..=42 | 49 | 54..=59 | 61 | 64 | 80 | 90 | 91 | 93..=99, _) | (43, 0)
+    )
+}
+
 /// G codes that take axis words without moving along them as a G1 would: homing, probing,
 /// setting offsets, direct moves. They pass through as commands.
 fn g_uses_axes(code: Code) -> bool {
@@ -784,7 +792,14 @@ impl Lowerer {
                     axis_user = true;
                     other_g.push(*w);
                 }
-                _ => other_g.push(*w),
+                c => {
+                    // A code the IR does not know may move or redefine coordinates
+                    // (G68.2, G65, G6600): its axis words are its own, not a move.
+                    if !g_known_modal(c) && motion_here.is_none() {
+                        axis_user = true;
+                    }
+                    other_g.push(*w)
+                }
             }
         }
         for (code, _) in &m_codes {
@@ -841,13 +856,11 @@ impl Lowerer {
                 .chain(rest.iter())
                 .copied()
                 .collect();
-            if axis_user || dwell || offset_code.is_some() {
-                // The command's own parameters stay with it.
-                for l in ['I', 'J', 'K', 'R', 'P', 'F'] {
-                    if let Some(w) = params[(l as u8 - b'A') as usize]
-                        && !(dwell && matches!(l, 'P'))
-                        && !(l == 'F' && !dwell)
-                    {
+            let becomes_motion = !axis_user && offset_code.is_none() && !named.is_empty();
+            if !dwell && !becomes_motion {
+                // The command's own parameters stay with it (`G54.1 P2`, `M98 P1 L2`).
+                for l in ['I', 'J', 'K', 'R', 'P'] {
+                    if let Some(w) = params[(l as u8 - b'A') as usize] {
                         v.push(w);
                     }
                 }

@@ -147,6 +147,26 @@ impl<R: BufRead> Frontend for Parser<R> {
     }
 }
 
+/// Lexes and parses one plain line into its syntax tree, without lowering; `None` when
+/// the line is not in the plain block grammar (expressions, dialect statements) or has a
+/// syntax error. For tools and benchmarks that want the syntax only.
+///
+/// ```
+/// let mut toks = Vec::new();
+/// let line = ncpost::front::gcode::parse_line("N10 G1 X2 ; cut", &mut toks).unwrap();
+/// assert_eq!(line.items.len(), 3);
+/// assert_eq!(line.tail.map(|t| t.1), Some("; cut"));
+/// ```
+pub fn parse_line<'a>(line: &'a str, toks: &mut Vec<lexer::Spanned<'a>>) -> Option<ast::Line<'a>> {
+    lexer::lex_line(line, toks);
+    if toks.iter().any(|t| matches!(t.1, lexer::Tok::Other(_) | lexer::Tok::Ident(_) | lexer::Tok::Number(_))) {
+        return None;
+    }
+    grammar::LineParser::new()
+        .parse(toks.iter().copied().map(Ok::<_, ()>))
+        .ok()
+}
+
 /// A whole program parsed from a string.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Program {
