@@ -36,8 +36,11 @@ pub struct Location {
     pub column: u32,
     /// Length of the marked text, in characters (at least 1).
     pub len: u32,
-    /// The source line, for the snippet (cut to a readable length).
+    /// The source line, for the snippet: cut to a readable length around the mark, with
+    /// control characters shown as U+FFFD.
     pub source_line: String,
+    /// Characters cut from the start of the line in `source_line`.
+    pub cut: u32,
 }
 
 /// A message about the input, with its place, a label for the marked text and help.
@@ -101,12 +104,13 @@ impl Diagnostic {
     /// `source_line`.
     pub fn at_line(mut self, line: u32, source_line: &str, column: u32, len: u32) -> Self {
         let column = column.max(1);
-        let (text, column) = snippet(source_line, column as usize);
+        let (text, cut) = snippet(source_line, column as usize);
         self.location = Some(Location {
             line,
-            column: column as u32,
+            column,
             len: len.max(1),
             source_line: text,
+            cut: cut as u32,
         });
         self
     }
@@ -127,6 +131,7 @@ impl Diagnostic {
             column: 1,
             len: 1,
             source_line: String::new(),
+            cut: 0,
         });
         self
     }
@@ -155,7 +160,12 @@ impl Diagnostic {
         let theme = if fancy {
             GraphicalTheme::unicode()
         } else {
-            GraphicalTheme::none()
+            // Plain text says what it is in words.
+            let mut t = GraphicalTheme::none();
+            t.characters.error = "error:".into();
+            t.characters.warning = "warning:".into();
+            t.characters.advice = "note:".into();
+            t
         };
         let handler = GraphicalReportHandler::new_themed(theme)
             .with_width(80)
@@ -208,15 +218,31 @@ fn floor_char(s: &str, mut i: usize) -> usize {
     i
 }
 
-/// Cuts a long line to a window around `column`; returns the text and the new column.
+/// Cuts a long line to a window around `column`; returns the text and the number of
+/// characters cut from its start. Control characters become U+FFFD so a snippet never
+/// drives the terminal.
 fn snippet(line: &str, column: usize) -> (String, usize) {
     let count = line.chars().count();
-    if count <= SNIPPET_MAX {
-        return (line.to_string(), column);
-    }
-    let start = column.saturating_sub(SNIPPET_MAX / 2).min(count - SNIPPET_MAX);
-    let text: String = line.chars().skip(start).take(SNIPPET_MAX).collect();
-    (text, column - start)
+    let start = if count <= SNIPPET_MAX {
+        0
+    } else {
+        column
+            .saturating_sub(SNIPPET_MAX / 2)
+            .min(count - SNIPPET_MAX)
+    };
+    let text: String = line
+        .chars()
+        .skip(start)
+        .take(SNIPPET_MAX)
+        .map(|c| {
+            if c.is_control() && c != '\t' {
+                '\u{fffd}'
+            } else {
+                c
+            }
+        })
+        .collect();
+    (text, start)
 }
 
 /// Adapter that lets miette draw one diagnostic with its one-line snippet.
@@ -277,9 +303,11 @@ impl miette::Diagnostic for Report<'_> {
         if l.source_line.is_empty() {
             return None;
         }
-        let start = char_to_byte(&l.source_line, l.column as usize - 1);
-        let end = char_to_byte(&l.source_line, (l.column + l.len) as usize - 1);
-        let span = miette::LabeledSpan::new(self.diag.label.clone(), start, end.saturating_sub(start));
+        let column = (l.column - l.cut) as usize;
+        let start = char_to_byte(&l.source_line, column - 1);
+        let end = char_to_byte(&l.source_line, column + l.len as usize - 1);
+        let span =
+            miette::LabeledSpan::new(self.diag.label.clone(), start, end.saturating_sub(start));
         Some(Box::new(std::iter::once(span)))
     }
 }
@@ -303,12 +331,16 @@ impl miette::SourceCode for Report<'_> {
         if span.offset() > l.source_line.len() {
             return Err(miette::MietteError::OutOfBounds);
         }
+        // The column is that of the requested span in the whole line: miette prints it in
+        // the `[file:line:column]` header.
+        let offset = floor_char(&l.source_line, span.offset());
+        let column = l.source_line[..offset].chars().count() + l.cut as usize;
         Ok(Box::new(miette::MietteSpanContents::new_named(
             self.file.to_string(),
             l.source_line.as_bytes(),
             (0, l.source_line.len()).into(),
             l.line.saturating_sub(1) as usize,
-            0,
+            column,
             1,
         )))
     }

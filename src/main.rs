@@ -114,7 +114,9 @@ fn main() -> ExitCode {
         }
         Command::Presets => {
             for (name, _) in BUILTIN {
-                let desc = Preset::builtin(name).map(|p| p.description).unwrap_or_default();
+                let desc = Preset::builtin(name)
+                    .map(|p| p.description)
+                    .unwrap_or_default();
                 println!("{name:<12} {desc}");
             }
             ExitCode::SUCCESS
@@ -150,8 +152,16 @@ fn run(
     let from = args.from.unwrap_or_else(|| from_extension(&args.input));
     match from {
         FromArg::Gcode => {}
-        FromArg::Cl => return usage("the APT/CL frontend is not part of this version yet; give G-code input (--from gcode)"),
-        FromArg::Hpgl => return usage("the HPGL frontend is not part of this version yet; give G-code input (--from gcode)"),
+        FromArg::Cl => {
+            return usage(
+                "the APT/CL frontend is not part of this version yet; give G-code input (--from gcode)",
+            );
+        }
+        FromArg::Hpgl => {
+            return usage(
+                "the HPGL frontend is not part of this version yet; give G-code input (--from gcode)",
+            );
+        }
     }
     let mut pipeline = match builder.build() {
         Ok(p) => p,
@@ -159,7 +169,23 @@ fn run(
     };
 
     let stdin_input = args.input.as_os_str() == "-";
-    let file_name = if stdin_input { "<stdin>".to_string() } else { args.input.display().to_string() };
+    let file_name = if stdin_input {
+        "<stdin>".to_string()
+    } else {
+        args.input.display().to_string()
+    };
+    if !stdin_input && args.input.is_dir() {
+        return usage(format!(
+            "{} is a directory; give a G-code file",
+            args.input.display()
+        ));
+    }
+    if let Some(o) = output.filter(|o| o.as_os_str() != "-" && o.is_dir()) {
+        return usage(format!(
+            "{} is a directory; give an output file name",
+            o.display()
+        ));
+    }
     let input: Box<dyn io::BufRead> = if stdin_input {
         Box::new(io::stdin().lock())
     } else {
@@ -181,7 +207,10 @@ fn run(
             None => pipeline.run_gcode(input, io::stdout().lock(), &mut |d| printer.print(d)),
             Some(path) => {
                 if !stdin_input && same_file(&args.input, path) {
-                    return usage(format!("{} is the input; choose another output file", path.display()));
+                    return usage(format!(
+                        "{} is the input; choose another output file",
+                        path.display()
+                    ));
                 }
                 return write_atomically(
                     path,
@@ -197,7 +226,18 @@ fn run(
 fn finish(result: Result<Summary, Diagnostic>, printer: &mut Printer) -> ExitCode {
     let code = match result {
         Ok(s) if s.errors == 0 => ExitCode::SUCCESS,
-        Ok(_) => ExitCode::from(EXIT_INPUT),
+        Ok(s) => {
+            if printer.format == MessageFormat::Human {
+                eprintln!(
+                    "{} error{}, {} warning{}",
+                    s.errors,
+                    plural(s.errors),
+                    s.warnings,
+                    plural(s.warnings)
+                );
+            }
+            ExitCode::from(EXIT_INPUT)
+        }
         Err(d) => {
             printer.print(d);
             ExitCode::from(EXIT_INPUT)
@@ -217,21 +257,52 @@ fn write_atomically(
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let mut tmp = match tempfile::Builder::new().prefix(".ncpost-").suffix(".tmp").tempfile_in(&dir) {
+    let mut tmp = match tempfile::Builder::new()
+        .prefix(".ncpost-")
+        .suffix(".tmp")
+        .tempfile_in(&dir)
+    {
         Ok(t) => t,
-        Err(e) => return usage(format!("cannot create a temporary file in {}: {e}", dir.display())),
+        Err(e) => {
+            return usage(format!(
+                "cannot create a temporary file in {}: {e}",
+                dir.display()
+            ));
+        }
     };
     let result = body(tmp.as_file_mut(), printer);
     let ok = matches!(result, Ok(s) if s.errors == 0);
     let code = finish(result, printer);
     if ok {
-        if let Err(e) = tmp.as_file_mut().sync_all().and_then(|_| tmp.persist(path).map(|_| ()).map_err(|e| e.error)) {
+        // A new file gets ordinary permissions (the temporary file is private); a
+        // replaced file keeps its own.
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            let mode = std::fs::metadata(path)
+                .map(|m| m.permissions().mode())
+                .unwrap_or(0o644);
+            let _ = tmp
+                .as_file()
+                .set_permissions(std::fs::Permissions::from_mode(mode));
+        }
+        if let Err(e) = tmp
+            .as_file_mut()
+            .sync_all()
+            .and_then(|_| tmp.persist(path).map(|_| ()).map_err(|e| e.error))
+        {
             eprintln!("error: cannot write {}: {e}", path.display());
             return ExitCode::from(EXIT_INPUT);
         }
+    } else if printer.format == MessageFormat::Human {
+        eprintln!("no output written: {} is unchanged", path.display());
     }
     // On failure the temporary file is removed when `tmp` drops; `path` is untouched.
     code
+}
+
+fn plural(n: u64) -> &'static str {
+    if n == 1 { "" } else { "s" }
 }
 
 fn same_file(a: &Path, b: &Path) -> bool {
@@ -241,10 +312,15 @@ fn same_file(a: &Path, b: &Path) -> bool {
     }
 }
 
-fn builder(args: &PipelineArgs, emit: Option<EmitArg>, dump_after: Option<&str>) -> Result<Builder, String> {
+fn builder(
+    args: &PipelineArgs,
+    emit: Option<EmitArg>,
+    dump_after: Option<&str>,
+) -> Result<Builder, String> {
     let mut b = Pipeline::builder();
     if let Some(path) = &args.config {
-        let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
         b = b.preset(Preset::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))?);
     } else {
         b = b.preset_name(args.preset.as_deref().unwrap_or("default"))?;
@@ -253,7 +329,10 @@ fn builder(args: &PipelineArgs, emit: Option<EmitArg>, dump_after: Option<&str>)
         let (name, table) = passes::parse_spec(spec)?;
         if passes::lookup(&name).is_none() {
             let names: Vec<&str> = passes::REGISTRY.iter().map(|p| p.name).collect();
-            return Err(format!("unknown pass `{name}`; the passes are: {}", names.join(", ")));
+            return Err(format!(
+                "unknown pass `{name}`; the passes are: {}",
+                names.join(", ")
+            ));
         }
         b = b.pass(&name, table);
     }
@@ -271,7 +350,11 @@ fn builder(args: &PipelineArgs, emit: Option<EmitArg>, dump_after: Option<&str>)
 }
 
 fn from_extension(path: &Path) -> FromArg {
-    let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
     match ext.as_str() {
         "cl" | "apt" | "cls" | "clsf" => FromArg::Cl,
         "hpgl" | "plt" | "hpg" => FromArg::Hpgl,
@@ -281,14 +364,18 @@ fn from_extension(path: &Path) -> FromArg {
 
 fn attach_progress(pipeline: &mut Pipeline, input: &Path) {
     const LARGE: u64 = 16 << 20;
-    let Ok(meta) = std::fs::metadata(input) else { return };
+    let Ok(meta) = std::fs::metadata(input) else {
+        return;
+    };
     if meta.len() < LARGE {
         return;
     }
     let bar = indicatif::ProgressBar::new(meta.len());
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{bar:40} {bytes}/{total_bytes} {bytes_per_sec} eta {eta}")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        indicatif::ProgressStyle::with_template(
+            "{bar:40} {bytes}/{total_bytes} {bytes_per_sec} eta {eta}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     pipeline.on_progress(Box::new(move |n| {
         bar.set_position(n);
@@ -341,7 +428,7 @@ impl Printer {
             let _ = writeln!(err, "{}", d.message);
             return;
         }
-        let _ = write!(err, "{}", d.render(&self.file, self.fancy));
+        let _ = writeln!(err, "{}", d.render(&self.file, self.fancy));
     }
 
     fn close(&mut self) {

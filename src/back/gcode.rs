@@ -75,7 +75,11 @@ impl<W: Write> Writer<W> {
 }
 
 impl<W: Write> Backend for Writer<W> {
-    fn write_block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+    fn write_block(
+        &mut self,
+        block: &Block,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), Diagnostic> {
         self.0.write_block(block, diags)
     }
     fn finish(&mut self) -> Result<(), Diagnostic> {

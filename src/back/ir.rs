@@ -23,7 +23,11 @@ impl<W: Write> Writer<W> {
 }
 
 impl<W: Write> Backend for Writer<W> {
-    fn write_block(&mut self, block: &Block, _diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+    fn write_block(
+        &mut self,
+        block: &Block,
+        _diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), Diagnostic> {
         self.line.clear();
         dump::write_block(&mut self.line, block);
         self.line.push('\n');

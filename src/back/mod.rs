@@ -25,7 +25,8 @@ use number::{to_units, write_units};
 pub trait Backend {
     /// Writes one block. An `Err` is a diagnostic about the block (an IR the backend
     /// cannot express) or an I/O failure.
-    fn write_block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic>;
+    fn write_block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>)
+    -> Result<(), Diagnostic>;
     /// Flushes the output at the end of the program.
     fn finish(&mut self) -> Result<(), Diagnostic>;
 }
@@ -109,7 +110,10 @@ pub(crate) struct Format {
 /// Which controller the text is for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Flavor {
-    Rrf { inverse_time: bool, unsupported: rrf::Unsupported },
+    Rrf {
+        inverse_time: bool,
+        unsupported: rrf::Unsupported,
+    },
     Plain,
 }
 
@@ -159,7 +163,13 @@ impl<W: Write> Emitter<W> {
         }
     }
 
-    fn word(&mut self, letter: char, value: f64, decimals: u8, block: &Block) -> Result<(), Diagnostic> {
+    fn word(
+        &mut self,
+        letter: char,
+        value: f64,
+        decimals: u8,
+        block: &Block,
+    ) -> Result<(), Diagnostic> {
         let units = to_units(value, decimals).ok_or_else(|| too_large(letter, value, block))?;
         self.word_units(letter, units, decimals);
         Ok(())
@@ -213,7 +223,10 @@ impl<W: Write> Emitter<W> {
                     own_lines = &comments[i..];
                     break;
                 }
-                if style == CommentStyle::Semicolon && self.fmt.comments == CommentOutput::Semicolon && i + 1 < comments.len() {
+                if style == CommentStyle::Semicolon
+                    && self.fmt.comments == CommentOutput::Semicolon
+                    && i + 1 < comments.len()
+                {
                     // Only the last inline comment may be a `;` comment.
                     self.push_comment(c, style);
                     own_lines = &comments[i + 1..];
@@ -271,7 +284,12 @@ impl<W: Write> Emitter<W> {
     }
 
     /// Prints the mode words the controller needs before a move, on their own line.
-    fn ensure_modes(&mut self, motion: &Motion, prints_e: bool, block: &Block) -> Result<(), Diagnostic> {
+    fn ensure_modes(
+        &mut self,
+        motion: &Motion,
+        prints_e: bool,
+        block: &Block,
+    ) -> Result<(), Diagnostic> {
         let mut setup = String::new();
         if self.modes.metric != Some(true) {
             setup.push_str("G21 ");
@@ -281,19 +299,33 @@ impl<W: Write> Emitter<W> {
             setup.push_str("G90 ");
             self.modes.absolute = Some(true);
         }
-        if !matches!(motion.kind, MotionKind::Rapid) && self.modes.feed_mode != Some(motion.feed.mode) {
-            if let (Flavor::Rrf { inverse_time: false, .. }, FeedMode::InverseTime) = (self.flavor, motion.feed.mode) {
+        if !matches!(motion.kind, MotionKind::Rapid)
+            && self.modes.feed_mode != Some(motion.feed.mode)
+        {
+            if let (
+                Flavor::Rrf {
+                    inverse_time: false,
+                    ..
+                },
+                FeedMode::InverseTime,
+            ) = (self.flavor, motion.feed.mode)
+            {
                 return Err(Diagnostic::error(
                     "rrf::inverse-time",
                     "inverse time feed (G93) needs RepRapFirmware 3.5 or newer",
                 )
                 .at_span(block.span)
-                .with_help("set `inverse_time = true` in the rrf backend options if the firmware is 3.5+"));
+                .with_help(
+                    "set `inverse_time = true` in the rrf backend options if the firmware is 3.5+",
+                ));
             }
             if let (Flavor::Rrf { .. }, FeedMode::PerRevolution) = (self.flavor, motion.feed.mode) {
-                return Err(Diagnostic::error("rrf::feed-per-rev", "RepRapFirmware has no feed per revolution (G95)")
-                    .at_span(block.span)
-                    .with_help("convert the feeds to mm/min for this spindle speed"));
+                return Err(Diagnostic::error(
+                    "rrf::feed-per-rev",
+                    "RepRapFirmware has no feed per revolution (G95)",
+                )
+                .at_span(block.span)
+                .with_help("convert the feeds to mm/min for this spindle speed"));
             }
             setup.push_str(match motion.feed.mode {
                 FeedMode::PerMinute => "G94 ",
@@ -355,7 +387,11 @@ impl<W: Write> Emitter<W> {
                 }
                 continue;
             }
-            let prog = if motion.machine_frame { v } else { v + self.offsets[a.index()] };
+            let prog = if motion.machine_frame {
+                v
+            } else {
+                v + self.offsets[a.index()]
+            };
             let u = to_units(prog, d).ok_or_else(|| too_large(a.letter(), prog, block))?;
             if self.printed[a.index()] != Some(u) || motion.machine_frame {
                 words[a.index()] = Some(u);
@@ -405,13 +441,19 @@ impl<W: Write> Emitter<W> {
                 Plane::YZ => ('J', 'K'),
             };
             let (Some(su), Some(sv)) = (self.pos.get(u), self.pos.get(v)) else {
-                return Err(Diagnostic::error("back::arc-start", "an arc starts from a position that is not known")
-                    .at_span(block.span)
-                    .with_help("move to an absolute position before the arc"));
+                return Err(Diagnostic::error(
+                    "back::arc-start",
+                    "an arc starts from a position that is not known",
+                )
+                .at_span(block.span)
+                .with_help("move to an absolute position before the arc"));
             };
             let d = self.fmt.decimals.linear;
             // I/J/K, printed in the order I, J, K.
-            let mut offs = [(letters.0, arc.center[u.index()] - su), (letters.1, arc.center[v.index()] - sv)];
+            let mut offs = [
+                (letters.0, arc.center[u.index()] - su),
+                (letters.1, arc.center[v.index()] - sv),
+            ];
             offs.sort_by_key(|o| o.0);
             for (l, val) in offs {
                 self.word(l, val, d, block)?;
@@ -420,9 +462,16 @@ impl<W: Write> Emitter<W> {
                 self.text(&format!("P{}", arc.extra_turns + 1));
             }
         }
-        if let Some(rate) = motion.feed.rate {
-            let fu = to_units(rate, self.fmt.decimals.feed).ok_or_else(|| too_large('F', rate, block))?;
-            let must = motion.feed.mode == FeedMode::InverseTime && !matches!(motion.kind, MotionKind::Rapid);
+        // F is modal and only matters to feed moves: print it there, when it changes.
+        if let Some(rate) = motion
+            .feed
+            .rate
+            .filter(|_| !matches!(motion.kind, MotionKind::Rapid))
+        {
+            let fu = to_units(rate, self.fmt.decimals.feed)
+                .ok_or_else(|| too_large('F', rate, block))?;
+            let must = motion.feed.mode == FeedMode::InverseTime
+                && !matches!(motion.kind, MotionKind::Rapid);
             if self.modes.feed != Some(fu) || must {
                 self.word_units('F', fu, self.fmt.decimals.feed);
                 self.modes.feed = Some(fu);
@@ -479,7 +528,8 @@ impl<W: Write> Emitter<W> {
             if self.pos.get(a).is_none() {
                 let v = change.declared.values[a.index()] - change.offsets[a.index()];
                 self.pos.set(a, v);
-                self.printed[a.index()] = to_units(change.declared.values[a.index()], self.fmt.decimals.axis(a));
+                self.printed[a.index()] =
+                    to_units(change.declared.values[a.index()], self.fmt.decimals.axis(a));
                 if a == Axis::E {
                     self.e_units = to_units(v, self.fmt.decimals.extruder);
                 }
@@ -498,7 +548,12 @@ impl<W: Write> Emitter<W> {
         self.pos.forget(axes);
     }
 
-    fn command(&mut self, block: &Block, cmd: &crate::ir::Command, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+    fn command(
+        &mut self,
+        block: &Block,
+        cmd: &crate::ir::Command,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), Diagnostic> {
         if let Flavor::Rrf { unsupported, .. } = self.flavor
             && let Some(code) = rrf::unsupported_code(&cmd.text)
         {
@@ -573,14 +628,24 @@ impl<W: Write> Emitter<W> {
         self.modes = Modes {
             metric: kept.map(|m| !m.inch),
             absolute: kept.map(|m| !m.relative),
-            e_relative: kept.and(self.modes.e_relative).map(|_| kept.is_some_and(|m| m.relative_e)),
-            plane: if v.keeps_modes { self.modes.plane } else { None },
+            e_relative: kept
+                .and(self.modes.e_relative)
+                .map(|_| kept.is_some_and(|m| m.relative_e)),
+            plane: if v.keeps_modes {
+                self.modes.plane
+            } else {
+                None
+            },
             ..Modes::default()
         };
         Ok(())
     }
 
-    pub(crate) fn block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+    pub(crate) fn block(
+        &mut self,
+        block: &Block,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), Diagnostic> {
         match &block.kind {
             BlockKind::Motion(m) => self.motion(block, m),
             BlockKind::Dwell { seconds } => {
@@ -615,9 +680,12 @@ fn balanced(text: &str) -> bool {
 }
 
 fn too_large(letter: char, value: f64, block: &Block) -> Diagnostic {
-    Diagnostic::error("back::number", format!("{letter} = {value} cannot be printed at the configured precision"))
-        .at_span(block.span)
-        .with_help("the value is not finite or too large; check the transformations before the backend")
+    Diagnostic::error(
+        "back::number",
+        format!("{letter} = {value} cannot be printed at the configured precision"),
+    )
+    .at_span(block.span)
+    .with_help("the value is not finite or too large; check the transformations before the backend")
 }
 
 pub(crate) fn io_error(e: std::io::Error) -> Diagnostic {
@@ -628,7 +696,11 @@ pub(crate) fn io_error(e: std::io::Error) -> Diagnostic {
 pub(crate) struct EmitterBackend<W: Write>(pub(crate) Emitter<W>);
 
 impl<W: Write> Backend for EmitterBackend<W> {
-    fn write_block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) -> Result<(), Diagnostic> {
+    fn write_block(
+        &mut self,
+        block: &Block,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), Diagnostic> {
         self.0.block(block, diags)
     }
     fn finish(&mut self) -> Result<(), Diagnostic> {
@@ -638,7 +710,10 @@ impl<W: Write> Backend for EmitterBackend<W> {
 
 /// Writes all `blocks` to `backend` and finishes it; errors and warnings are returned
 /// together when any error occurs.
-pub(crate) fn write_all(backend: &mut dyn Backend, blocks: &[Block]) -> Result<(), Vec<Diagnostic>> {
+pub(crate) fn write_all(
+    backend: &mut dyn Backend,
+    blocks: &[Block],
+) -> Result<(), Vec<Diagnostic>> {
     let mut diags = Vec::new();
     for b in blocks {
         if let Err(d) = backend.write_block(b, &mut diags) {

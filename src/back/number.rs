@@ -33,34 +33,39 @@ const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 /// assert_eq!(s, "0.005");
 /// ```
 pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
-    let decimals = decimals.min(9) as usize;
-    if units < 0 {
-        out.push('-');
-    }
-    let mut digits = itoa::Buffer::new();
-    let digits = digits.format(units.unsigned_abs());
-    if decimals == 0 {
-        out.push_str(digits);
-        return;
-    }
-    let (int_part, frac_part) = if digits.len() > decimals {
-        digits.split_at(digits.len() - decimals)
-    } else {
-        ("0", digits)
-    };
-    out.push_str(int_part);
-    let mut frac = [b'0'; 9];
-    frac[decimals - frac_part.len()..decimals].copy_from_slice(frac_part.as_bytes());
-    let mut len = decimals;
+    // Digits are written backwards into a stack buffer: no allocation, no float formatting.
+    let mut buf = [0u8; 32];
+    let mut i = buf.len();
+    let mut u = units.unsigned_abs();
+    let mut frac = decimals.min(9) as usize;
     if trim {
-        while len > 0 && frac[len - 1] == b'0' {
-            len -= 1;
+        while frac > 0 && u % 10 == 0 {
+            u /= 10;
+            frac -= 1;
         }
     }
-    if len > 0 {
-        out.push('.');
-        out.extend(frac[..len].iter().map(|&b| b as char));
+    for _ in 0..frac {
+        i -= 1;
+        buf[i] = b'0' + (u % 10) as u8;
+        u /= 10;
     }
+    if frac > 0 {
+        i -= 1;
+        buf[i] = b'.';
+    }
+    loop {
+        i -= 1;
+        buf[i] = b'0' + (u % 10) as u8;
+        u /= 10;
+        if u == 0 {
+            break;
+        }
+    }
+    if units < 0 {
+        i -= 1;
+        buf[i] = b'-';
+    }
+    out.push_str(std::str::from_utf8(&buf[i..]).unwrap_or("0"));
 }
 
 /// Prints `value` at `decimals` places (see [`write_units`]); `false` if it does not fit.
@@ -102,7 +107,11 @@ mod tests {
             let v = i as f64 * 0.0137;
             let ours = fmt(v, 4, false);
             let std = format!("{:.4}", (v * 1e4).round() / 1e4);
-            let std = if std == "-0.0000" { "0.0000".to_string() } else { std };
+            let std = if std == "-0.0000" {
+                "0.0000".to_string()
+            } else {
+                std
+            };
             assert_eq!(ours, std, "{v}");
         }
     }

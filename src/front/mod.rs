@@ -66,6 +66,10 @@ impl<R: BufRead> LineReader<R> {
         let start = self.offset;
         let mut too_long = false;
         let mut consumed_any = false;
+        let mut newline = false;
+        // The byte before the newline, to tell `\r\n` from `\n` when the line was skipped.
+        let mut last = 0u8;
+        let mut before_newline = 0u8;
         loop {
             let chunk = match self.inner.fill_buf() {
                 Ok(c) => c,
@@ -77,9 +81,16 @@ impl<R: BufRead> LineReader<R> {
             }
             consumed_any = true;
             let (take, done) = match memchr::memchr(b'\n', chunk) {
-                Some(i) => (i + 1, true),
+                Some(i) => {
+                    before_newline = if i > 0 { chunk[i - 1] } else { last };
+                    (i + 1, true)
+                }
                 None => (chunk.len(), false),
             };
+            if take > 0 {
+                last = chunk[take - 1];
+            }
+            // Two more bytes than the limit leave room for `\r\n`; the exact check is below.
             if !too_long {
                 if self.buf.len() + take > self.max_len + 2 {
                     too_long = true;
@@ -91,6 +102,7 @@ impl<R: BufRead> LineReader<R> {
             self.inner.consume(take);
             self.offset += take as u64;
             if done {
+                newline = true;
                 break;
             }
         }
@@ -99,21 +111,21 @@ impl<R: BufRead> LineReader<R> {
         }
         self.line += 1;
         let total = (self.offset - start) as usize;
-        if too_long {
+        let terminator = match (newline, before_newline) {
+            (true, b'\r') => 2,
+            (true, _) => 1,
+            (false, _) => 0,
+        };
+        let content = total - terminator.min(total);
+        if too_long || content > self.max_len {
             let span = Span {
                 offset: start,
-                len: total.min(u32::MAX as usize) as u32,
+                len: content.min(u32::MAX as usize) as u32,
                 line: self.line,
             };
             return Ok(Some((RawLine::TooLong, span)));
         }
-        let mut end = self.buf.len();
-        if end > 0 && self.buf[end - 1] == b'\n' {
-            end -= 1;
-        }
-        if end > 0 && self.buf[end - 1] == b'\r' {
-            end -= 1;
-        }
+        let end = content;
         let bytes = &self.buf[..end];
         let span = Span {
             offset: start,

@@ -181,9 +181,7 @@ pub struct Joints {
 impl Joints {
     /// The value of `axis`, if known.
     pub fn get(&self, axis: Axis) -> Option<f64> {
-        self.known
-            .contains(axis)
-            .then(|| self.values[axis.index()])
+        self.known.contains(axis).then(|| self.values[axis.index()])
     }
     /// Sets `axis` to a known value.
     pub fn set(&mut self, axis: Axis, value: f64) {

@@ -98,7 +98,10 @@ fn check_joints(j: &Joints) -> Result<(), String> {
             return Err(format!("{} is not finite (invariant 6)", a.letter()));
         }
         if !j.known.contains(a) && v != 0.0 {
-            return Err(format!("unknown axis {} holds a value (invariant 3)", a.letter()));
+            return Err(format!(
+                "unknown axis {} holds a value (invariant 3)",
+                a.letter()
+            ));
         }
     }
     Ok(())

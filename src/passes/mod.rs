@@ -77,7 +77,10 @@ pub fn lookup(name: &str) -> Option<&'static PassInfo> {
 pub fn build(name: &str, options: &toml::Table) -> Result<Box<dyn Pass>, String> {
     let info = lookup(name).ok_or_else(|| {
         let names: Vec<&str> = REGISTRY.iter().map(|p| p.name).collect();
-        format!("unknown pass `{name}`; the passes are: {}", names.join(", "))
+        format!(
+            "unknown pass `{name}`; the passes are: {}",
+            names.join(", ")
+        )
     })?;
     (info.build)(options).map_err(|e| format!("options of pass `{name}`: {e}"))
 }

@@ -73,7 +73,9 @@ impl Stats {
         t.comments += block.comments.len() as u64;
         match &block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(end) = &m.target else { return };
+                let Target::Joints(end) = &m.target else {
+                    return;
+                };
                 let length = match m.kind {
                     MotionKind::Arc(arc) => arc_length(&self.last, end, &arc),
                     _ => xyz_distance(&self.last, end),
@@ -85,7 +87,11 @@ impl Stats {
                         t.seconds += 60.0 * length / self.options.rapid_feed.max(1e-9);
                     }
                     _ => {
-                        t.moves[if matches!(m.kind, MotionKind::Linear) { 1 } else { 2 }] += 1;
+                        t.moves[if matches!(m.kind, MotionKind::Linear) {
+                            1
+                        } else {
+                            2
+                        }] += 1;
                         t.feed_mm += length;
                         t.seconds += match (m.feed.mode, m.feed.rate) {
                             (FeedMode::InverseTime, Some(f)) if f > 0.0 => 60.0 / f,
@@ -94,7 +100,10 @@ impl Stats {
                         };
                     }
                 }
-                if end.known.contains(Axis::X) && end.known.contains(Axis::Y) && end.known.contains(Axis::Z) {
+                if end.known.contains(Axis::X)
+                    && end.known.contains(Axis::Y)
+                    && end.known.contains(Axis::Z)
+                {
                     let p = [end.values[0], end.values[1], end.values[2]];
                     t.bounds = Some(match t.bounds {
                         None => (p, p),
@@ -124,7 +133,15 @@ impl Stats {
         let mut s = format!(
             "stats: {} blocks; moves: {} rapid, {} linear, {} arc; {} comments; {} passed through as text\n\
              path: {:.3} mm feed, {:.3} mm rapid; estimated time {:.1} s (no acceleration)",
-            t.blocks, t.moves[0], t.moves[1], t.moves[2], t.comments, t.verbatim, t.feed_mm, t.rapid_mm, t.seconds
+            t.blocks,
+            t.moves[0],
+            t.moves[1],
+            t.moves[2],
+            t.comments,
+            t.verbatim,
+            t.feed_mm,
+            t.rapid_mm,
+            t.seconds
         );
         if let Some((lo, hi)) = t.bounds {
             s.push_str(&format!(

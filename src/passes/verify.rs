@@ -40,7 +40,9 @@ impl Pass for Verify {
             out.diag(
                 Diagnostic::error("ir::invariant", format!("IR invariant broken: {e}"))
                     .at_span(block.span)
-                    .with_help("a pass before this one produced an invalid block; please report it"),
+                    .with_help(
+                        "a pass before this one produced an invalid block; please report it",
+                    ),
             );
         }
         out.push(block);

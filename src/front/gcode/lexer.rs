@@ -118,14 +118,22 @@ mod tests {
     fn compact_words_split() {
         assert_eq!(
             toks("G1Y-2X179F2400"),
-            vec![Tok::Word("G1"), Tok::Word("Y-2"), Tok::Word("X179"), Tok::Word("F2400")]
+            vec![
+                Tok::Word("G1"),
+                Tok::Word("Y-2"),
+                Tok::Word("X179"),
+                Tok::Word("F2400")
+            ]
         );
     }
 
     #[test]
     fn nested_and_open_comments() {
         assert_eq!(toks("((a) b)"), vec![Tok::Comment("((a) b)")]);
-        assert_eq!(toks("G0 ( open"), vec![Tok::Word("G0"), Tok::OpenComment("( open")]);
+        assert_eq!(
+            toks("G0 ( open"),
+            vec![Tok::Word("G0"), Tok::OpenComment("( open")]
+        );
     }
 
     #[test]
@@ -138,6 +146,14 @@ mod tests {
 
     #[test]
     fn unknown_characters_become_other() {
-        assert_eq!(toks("#1=2"), vec![Tok::Other("#"), Tok::Number("1"), Tok::Other("="), Tok::Number("2")]);
+        assert_eq!(
+            toks("#1=2"),
+            vec![
+                Tok::Other("#"),
+                Tok::Number("1"),
+                Tok::Other("="),
+                Tok::Number("2")
+            ]
+        );
     }
 }

@@ -1,23 +1,28 @@
 //! Lowering of G-code lines to IR blocks, with the modal state of the controller.
 
 use nalgebra::Vector3;
+use smallvec::SmallVec;
+use std::collections::VecDeque;
+
+/// Per-line scratch lists live on the stack.
+type Small<T> = SmallVec<[T; 8]>;
 
 use super::Options;
 use super::ast::{Item, Line};
 use super::lexer::{Spanned, Tok, lex_line};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    Arc, Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode,
-    Joints, Motion, MotionKind, OffsetChange, OffsetCode, Plane, Span, Target, Verbatim,
-    VerbatimReason, WrittenModes, AXIS_COUNT,
+    AXIS_COUNT, Arc, Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed,
+    FeedMode, Joints, Motion, MotionKind, OffsetChange, OffsetCode, Plane, Span, Target, Verbatim,
+    VerbatimReason, WrittenModes,
 };
 
 const MM_PER_INCH: f64 = 25.4;
 
 /// RepRapFirmware meta-command keywords that start a line.
 const META_KEYWORDS: &[&str] = &[
-    "if", "elif", "else", "while", "break", "continue", "abort", "var", "global", "set",
-    "echo", "skip",
+    "if", "elif", "else", "while", "break", "continue", "abort", "var", "global", "set", "echo",
+    "skip",
 ];
 /// Meta keywords that open an indented block.
 const META_BLOCK_KEYWORDS: &[&str] = &["if", "elif", "else", "while"];
@@ -28,7 +33,9 @@ enum MotionMode {
     None,
     Rapid,
     Linear,
-    Arc { clockwise: bool },
+    Arc {
+        clockwise: bool,
+    },
     /// A mode the IR does not model (canned cycles, splines, threading).
     Unsupported,
 }
@@ -42,8 +49,16 @@ fn parse_code(number: &str) -> Option<Code> {
         Some((a, b)) => (a, b.trim_end_matches('0')),
         None => (number, ""),
     };
-    let major = if major.is_empty() { 0 } else { major.parse().ok()? };
-    let minor = if minor.is_empty() { 0 } else { minor.parse().ok()? };
+    let major = if major.is_empty() {
+        0
+    } else {
+        major.parse().ok()?
+    };
+    let minor = if minor.is_empty() {
+        0
+    } else {
+        minor.parse().ok()?
+    };
     Some((major, minor))
 }
 
@@ -101,7 +116,11 @@ fn clobbers(g: &[Code], m: &[Code], named: AxisSet) -> AxisSet {
         match code {
             // Homing and parking: the named axes, or all.
             (28 | 30 | 161 | 162 | 6 | 29, 0) => {
-                set = set.union(if named.is_empty() { AxisSet::ALL } else { named })
+                set = set.union(if named.is_empty() {
+                    AxisSet::ALL
+                } else {
+                    named
+                })
             }
             // Probing stops somewhere along the named axes.
             (31, 0) | (38, _) => set = set.union(named),
@@ -145,6 +164,10 @@ pub(super) struct Lowerer {
     meta_indent: Option<usize>,
     /// Inside a Fanuc subprogram body (until M99).
     in_subprogram: bool,
+    /// Item buffer reused for every line.
+    items: Vec<Item>,
+    /// A non-blank line has been seen.
+    saw_text: bool,
     /// A block of the main program has been seen.
     program_started: bool,
 }
@@ -168,8 +191,15 @@ impl Lowerer {
             oword_stack: Vec::new(),
             meta_indent: None,
             in_subprogram: false,
+            items: Vec::with_capacity(32),
+            saw_text: false,
             program_started: false,
         }
+    }
+
+    /// Whether any non-blank line was read.
+    pub(super) fn saw_text(&self) -> bool {
+        self.saw_text
     }
 
     pub(super) fn finish(&mut self, diags: &mut Vec<Diagnostic>) {
@@ -223,11 +253,31 @@ impl Lowerer {
         &mut self,
         text: &str,
         span: Span,
-        out: &mut Vec<Block>,
+        out: &mut VecDeque<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
         let trimmed = text.trim();
         if trimmed.is_empty() {
+            return;
+        }
+        self.saw_text = true;
+        // Control characters never belong in G-code: most likely a binary file.
+        if let Some(at) = text
+            .bytes()
+            .position(|b| (b < 0x20 && !matches!(b, b'\t' | b'\r' | 0x0b | 0x0c)) || b == 0x7f)
+        {
+            diags.push(
+                Diagnostic::error(
+                    "gcode::control-character",
+                    format!(
+                        "control character 0x{:02x} in the line",
+                        text.as_bytes()[at]
+                    ),
+                )
+                .at_bytes(span.line, text, at, at + 1)
+                .with_label("not text")
+                .with_help("G-code is plain text; check that the file is not binary or corrupted"),
+            );
             return;
         }
         let indent = text.len() - text.trim_start().len();
@@ -236,13 +286,25 @@ impl Lowerer {
         // A RepRapFirmware meta block: its body is the lines indented deeper.
         if let Some(k) = self.meta_indent {
             if indent > k {
-                out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, AxisSet::ALL, Placement::Inside));
+                out.push_back(self.verbatim(
+                    text,
+                    span,
+                    VerbatimReason::ControlFlow,
+                    AxisSet::ALL,
+                    Placement::Inside,
+                ));
                 return;
             }
             self.meta_indent = None;
         }
         if self.in_subprogram {
-            out.push(self.verbatim(text, span, VerbatimReason::Subprogram, AxisSet::ALL, Placement::Inside));
+            out.push_back(self.verbatim(
+                text,
+                span,
+                VerbatimReason::Subprogram,
+                AxisSet::ALL,
+                Placement::Inside,
+            ));
             if contains_m99(text) {
                 self.in_subprogram = false;
             }
@@ -270,7 +332,13 @@ impl Lowerer {
                          positions after it are treated as unknown",
                     ),
                 );
-                out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, AxisSet::ALL, Placement::TopLevel { keeps_modes: false }));
+                out.push_back(self.verbatim(
+                    text,
+                    span,
+                    VerbatimReason::ControlFlow,
+                    AxisSet::ALL,
+                    Placement::TopLevel { keeps_modes: false },
+                ));
                 return;
             }
         }
@@ -280,7 +348,13 @@ impl Lowerer {
             return;
         }
         if !self.oword_stack.is_empty() {
-            out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, AxisSet::ALL, Placement::Inside));
+            out.push_back(self.verbatim(
+                text,
+                span,
+                VerbatimReason::ControlFlow,
+                AxisSet::ALL,
+                Placement::Inside,
+            ));
             return;
         }
 
@@ -293,15 +367,32 @@ impl Lowerer {
                 diags.push(
                     Diagnostic::warning(
                         "gcode::subprogram",
-                        format!("subprogram {} passes through unchanged", w.to_ascii_uppercase()),
+                        format!(
+                            "subprogram {} passes through unchanged",
+                            w.to_ascii_uppercase()
+                        ),
                     )
                     .at_bytes(line_no, text, s, e)
                     .with_label("body copied as written up to its M99")
-                    .with_help("the expand-subprograms pass inlines M98 calls when it is available"),
+                    .with_help(
+                        "the expand-subprograms pass inlines M98 calls when it is available",
+                    ),
                 );
-                out.push(self.verbatim(text, span, VerbatimReason::Subprogram, AxisSet::ALL, Placement::Inside));
+                out.push_back(self.verbatim(
+                    text,
+                    span,
+                    VerbatimReason::Subprogram,
+                    AxisSet::ALL,
+                    Placement::Inside,
+                ));
             } else {
-                out.push(self.verbatim(text, span, VerbatimReason::Delimiter, AxisSet::EMPTY, Placement::Inside));
+                out.push_back(self.verbatim(
+                    text,
+                    span,
+                    VerbatimReason::Delimiter,
+                    AxisSet::EMPTY,
+                    Placement::Inside,
+                ));
             }
             return;
         }
@@ -312,7 +403,7 @@ impl Lowerer {
                     self.program_started = true;
                     let clob = self.command_clobbers(&toks);
                     self.pos.forget(clob);
-                    out.push(Block::new(
+                    out.push_back(Block::new(
                         span,
                         BlockKind::Command(Command {
                             text: text.trim().to_string(),
@@ -323,15 +414,23 @@ impl Lowerer {
                 }
                 Unplain::Unevaluated => {
                     let keeps_modes = !self.apply_plain_modes(&toks);
-                    out.push(self.verbatim(text, span, VerbatimReason::Unevaluated, AxisSet::ALL, Placement::TopLevel { keeps_modes }));
+                    out.push_back(self.verbatim(
+                        text,
+                        span,
+                        VerbatimReason::Unevaluated,
+                        AxisSet::ALL,
+                        Placement::TopLevel { keeps_modes },
+                    ));
                 }
                 Unplain::Error => {}
             }
             return;
         }
 
+        let mut items = std::mem::take(&mut self.items);
+        items.clear();
         let parsed = super::grammar::LineParser::new()
-            .parse(toks.iter().copied().map(Ok::<_, ()>));
+            .parse(&mut items, toks.iter().copied().map(Ok::<_, ()>));
         let parsed = match parsed {
             Ok(l) => l,
             Err(err) => {
@@ -339,7 +438,8 @@ impl Lowerer {
                 return;
             }
         };
-        self.block(text, span, parsed, out, diags);
+        self.block(text, span, parsed, &items, out, diags);
+        self.items = items;
     }
 
     /// Handles an o-word line (LinuxCNC control flow).
@@ -349,7 +449,7 @@ impl Lowerer {
         span: Span,
         toks: &[Spanned<'_>],
         keyword: &str,
-        out: &mut Vec<Block>,
+        out: &mut VecDeque<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
         let label = oword_label(text, toks);
@@ -384,7 +484,12 @@ impl Lowerer {
                     "gcode::control-flow",
                     format!("o-word `{kw}` is not evaluated"),
                 )
-                .at_bytes(span.line, text, toks[0].0, toks.last().map_or(toks[0].2, |t| t.2))
+                .at_bytes(
+                    span.line,
+                    text,
+                    toks[0].0,
+                    toks.last().map_or(toks[0].2, |t| t.2),
+                )
                 .with_label("passes through unchanged")
                 .with_help(
                     "o-word subroutines, loops and conditions are copied as written, with \
@@ -392,7 +497,13 @@ impl Lowerer {
                 ),
             );
         }
-        out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, AxisSet::ALL, placement));
+        out.push_back(self.verbatim(
+            text,
+            span,
+            VerbatimReason::ControlFlow,
+            AxisSet::ALL,
+            placement,
+        ));
     }
 
     /// Decides whether a line is outside the plain block grammar; reports why.
@@ -403,6 +514,21 @@ impl Lowerer {
         toks: &[Spanned<'_>],
         diags: &mut Vec<Diagnostic>,
     ) -> Option<Unplain> {
+        // A checksum ends the line; anything but a comment after it is an error.
+        if let Some(i) = toks.iter().position(|t| matches!(t.1, Tok::Checksum(_)))
+            && let Some(&(s, _, e)) = toks[i + 1..]
+                .iter()
+                .find(|t| !matches!(t.1, Tok::LineComment(_) | Tok::Comment(_)))
+        {
+            let (cs, ce) = (toks[i].0, toks[i].2);
+            diags.push(
+                Diagnostic::error("gcode::checksum-position", format!("checksum `{}` must end the line", &text[cs..ce]))
+                    .at_bytes(line_no, text, cs, ce)
+                    .with_label("followed by more words")
+                    .with_help(format!("move `{}` (and everything after it) before the checksum, or remove the checksum", &text[s..e])),
+            );
+            return Some(Unplain::Error);
+        }
         let mut expression = None;
         let mut odd = None;
         for (i, &(s, tok, e)) in toks.iter().enumerate() {
@@ -427,24 +553,36 @@ impl Lowerer {
         let command_line = matches!(first_letter, Some('M' | 'T'));
         let has_string = toks.iter().any(|t| matches!(t.1, Tok::Str(_)));
         if expression.is_none() && odd.is_none() && (!has_string || command_line) {
-            return if has_string { Some(Unplain::Command) } else { None };
+            return if has_string {
+                Some(Unplain::Command)
+            } else {
+                None
+            };
         }
-        // NaN and infinity are never numbers in G-code, whatever the dialect.
-        if let Some((s, e, Tok::Ident(w))) = odd {
-            let tail = w[1..].to_ascii_lowercase();
-            if matches!(tail.as_str(), "nan" | "inf" | "infinity") {
+        // NaN and infinity are never numbers in G-code, whatever the dialect: `XNaN`,
+        // `X-inf`, `X nan`.
+        for &(s, tok, e) in toks {
+            let Tok::Ident(w) = tok else { continue };
+            let lower = w.to_ascii_lowercase();
+            let name = ["infinity", "nan", "inf"]
+                .into_iter()
+                .find(|n| lower.ends_with(n) && lower.len() <= n.len() + 1);
+            if let Some(name) = name {
+                let at = e - name.len();
                 diags.push(
                     Diagnostic::error(
                         "gcode::not-a-number",
-                        format!("`{}` is not a number G-code accepts", &w[1..]),
+                        format!("`{}` is not a number G-code accepts", &text[at..e]),
                     )
-                    .at_bytes(line_no, text, s + 1, e)
+                    .at_bytes(line_no, text, at, e)
                     .with_label("not a finite number")
-                    .with_help(format!("give {} a finite decimal value", &w[..1])),
+                    .with_help("give the word a finite decimal value"),
                 );
+                let _ = s;
                 return Some(Unplain::Error);
             }
         }
+
         if command_line && expression.is_none() {
             return Some(Unplain::Command);
         }
@@ -490,8 +628,8 @@ impl Lowerer {
     }
 
     fn command_clobbers(&self, toks: &[Spanned<'_>]) -> AxisSet {
-        let mut g = Vec::new();
-        let mut m = Vec::new();
+        let mut g: Small<Code> = Small::new();
+        let mut m: Small<Code> = Small::new();
         let mut named = AxisSet::EMPTY;
         for t in toks {
             if let Tok::Word(w) | Tok::Letter(w) = t.1 {
@@ -515,8 +653,9 @@ impl Lowerer {
         &mut self,
         text: &str,
         span: Span,
-        line: Line<'_>,
-        out: &mut Vec<Block>,
+        line: Line,
+        items: &[Item],
+        out: &mut VecDeque<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
         let line_no = span.line;
@@ -524,14 +663,20 @@ impl Lowerer {
             Diagnostic::error(code, msg).at_bytes(line_no, text, s, e)
         };
 
-        if let Some((at, cs)) = line.checksum {
-            let expected: u32 = text.as_bytes()[..at].iter().fold(0u32, |a, b| a ^ *b as u32);
+        if let Some((at, cs_end)) = line.checksum {
+            let cs = &text[at..cs_end];
+            let expected: u32 = text.as_bytes()[..at]
+                .iter()
+                .fold(0u32, |a, b| a ^ *b as u32);
             let given: Option<u32> = cs[1..].parse().ok();
             if given != Some(expected) {
                 diags.push(
                     err(
                         "gcode::checksum",
-                        format!("checksum {} does not match the line (expected *{expected})", cs),
+                        format!(
+                            "checksum {} does not match the line (expected *{expected})",
+                            cs
+                        ),
                         at,
                         at + cs.len(),
                     )
@@ -543,17 +688,15 @@ impl Lowerer {
         }
 
         let mut comments = Vec::new();
-        let mut words: Vec<Word<'_>> = Vec::with_capacity(line.items.len());
-        let mut bare: Vec<(usize, &str)> = Vec::new();
+        let mut words: Small<Word<'_>> = Small::new();
+        let mut bare: Small<(usize, &str)> = Small::new();
         let mut percent = false;
-        for item in &line.items {
+        for item in items {
             match *item {
-                Item::Word(s, w) => {
+                Item::Word(s, e) => {
+                    let w = &text[s..e];
                     let (letter, number) = split_word(w);
-                    let value: f64 = match number.parse() {
-                        Ok(v) => v,
-                        Err(_) => f64::NAN,
-                    };
+                    let value = parse_decimal(&number).unwrap_or(f64::NAN);
                     if !value.is_finite() || value.abs() > 1e12 {
                         diags.push(
                             err(
@@ -600,19 +743,25 @@ impl Lowerer {
                         text: w,
                     });
                 }
-                Item::Letter(s, l) => bare.push((s, l)),
-                Item::Comment(_, c) => comments.push(Comment {
-                    text: c[1..c.len() - 1].to_string(),
+                Item::Letter(s, e) => bare.push((s, &text[s..e])),
+                Item::Comment(s, e) => comments.push(Comment {
+                    text: text[s + 1..e - 1].to_string(),
                     style: CommentStyle::Paren,
                 }),
                 Item::Str(s, _) => {
-                    diags.push(err("gcode::string", "a quoted string needs an M command".into(), s, s + 1));
+                    diags.push(err(
+                        "gcode::string",
+                        "a quoted string needs an M command".into(),
+                        s,
+                        s + 1,
+                    ));
                     return;
                 }
                 Item::Percent(_) => percent = true,
             }
         }
-        if let Some((at, c)) = line.tail {
+        if let Some((at, tail_end)) = line.tail {
+            let c = &text[at..tail_end];
             if let Some(rest) = c.strip_prefix(';') {
                 comments.push(Comment {
                     text: rest.to_string(),
@@ -654,33 +803,53 @@ impl Lowerer {
                 ));
                 return;
             }
-            out.push(self.verbatim(text, span, VerbatimReason::Delimiter, AxisSet::EMPTY, Placement::Inside));
+            out.push_back(self.verbatim(
+                text,
+                span,
+                VerbatimReason::Delimiter,
+                AxisSet::EMPTY,
+                Placement::Inside,
+            ));
             return;
         }
 
         if line.block_delete {
-            let named_here: AxisSet = words.iter().filter_map(|w| Axis::from_letter(w.letter)).collect();
+            let named_here: AxisSet = words
+                .iter()
+                .filter_map(|w| Axis::from_letter(w.letter))
+                .collect();
             diags.push(
                 Diagnostic::warning("gcode::block-delete", "block delete `/` line is not evaluated")
                     .at_bytes(line_no, text, 0, 1)
                     .with_label("optional block")
                     .with_help("the controller may skip it; it is copied as written and positions after it are unknown"),
             );
-            out.push(self.verbatim(text, span, VerbatimReason::ControlFlow, named_here, Placement::TopLevel { keeps_modes: true }));
+            out.push_back(self.verbatim(
+                text,
+                span,
+                VerbatimReason::ControlFlow,
+                named_here,
+                Placement::TopLevel { keeps_modes: true },
+            ));
             return;
         }
 
         // Sort the words.
-        let mut g_codes: Vec<(Code, Word<'_>)> = Vec::new();
-        let mut m_codes: Vec<(Code, Word<'_>)> = Vec::new();
+        let mut g_codes: Small<(Code, Word<'_>)> = Small::new();
+        let mut m_codes: Small<(Code, Word<'_>)> = Small::new();
         let mut axes: [Option<Word<'_>>; AXIS_COUNT] = [None; AXIS_COUNT];
         let mut params: [Option<Word<'_>>; 26] = [None; 26];
-        let mut rest: Vec<Word<'_>> = Vec::new();
+        let mut rest: Small<Word<'_>> = Small::new();
         for w in &words {
             match w.letter {
                 'G' | 'M' => {
                     let Some(code) = parse_code(w.number) else {
-                        diags.push(err("gcode::code", format!("`{}` is not a valid code", w.text), w.start, w.end));
+                        diags.push(err(
+                            "gcode::code",
+                            format!("`{}` is not a valid code", w.text),
+                            w.start,
+                            w.end,
+                        ));
                         return;
                     };
                     if w.letter == 'G' {
@@ -696,7 +865,8 @@ impl Lowerer {
                         None => &mut params[(l as u8 - b'A') as usize],
                     };
                     if let Some(prev) = slot
-                        && (Axis::from_letter(l).is_some() || matches!(l, 'F' | 'I' | 'J' | 'K' | 'R'))
+                        && (Axis::from_letter(l).is_some()
+                            || matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'S'))
                     {
                         diags.push(
                             err(
@@ -706,14 +876,18 @@ impl Lowerer {
                                 w.end,
                             )
                             .with_label(format!("second `{l}`; the first is `{}`", prev.text))
-                            .with_help("a block may give each letter once; split it into two blocks"),
+                            .with_help(
+                                "a block may give each letter once; split it into two blocks",
+                            ),
                         );
                         return;
                     }
                     if slot.is_none() {
                         *slot = Some(*w);
                     }
-                    if Axis::from_letter(l).is_none() && !matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'P') {
+                    if Axis::from_letter(l).is_none()
+                        && !matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'P')
+                    {
                         rest.push(*w);
                     }
                 }
@@ -723,12 +897,17 @@ impl Lowerer {
         for (i, (code, w)) in g_codes.iter().enumerate() {
             if let Some(group) = g_group(*code)
                 && group != "non-modal"
-                && let Some((_, first)) = g_codes[..i].iter().find(|(c, _)| g_group(*c) == Some(group))
+                && let Some((_, first)) = g_codes[..i]
+                    .iter()
+                    .find(|(c, _)| g_group(*c) == Some(group))
             {
                 diags.push(
                     err(
                         "gcode::modal-conflict",
-                        format!("`{}` and `{}` are both in the {group} group", first.text, w.text),
+                        format!(
+                            "`{}` and `{}` are both in the {group} group",
+                            first.text, w.text
+                        ),
                         w.start,
                         w.end,
                     )
@@ -738,7 +917,10 @@ impl Lowerer {
                 return;
             }
         }
-        let named: AxisSet = Axis::ALL.into_iter().filter(|a| axes[a.index()].is_some()).collect();
+        let named: AxisSet = Axis::ALL
+            .into_iter()
+            .filter(|a| axes[a.index()].is_some())
+            .collect();
 
         // Modal settings, in RS274 execution order.
         let mut motion_here = None;
@@ -747,8 +929,8 @@ impl Lowerer {
         let mut offset_code = None;
         let mut machine_frame = false;
         let mut axis_user = false;
-        let mut other_g: Vec<Word<'_>> = Vec::new();
-        let mut g_list = Vec::new();
+        let mut other_g: Small<Word<'_>> = Small::new();
+        let mut g_list: Small<Code> = Small::new();
         for (code, w) in &g_codes {
             g_list.push(*code);
             match *code {
@@ -818,8 +1000,8 @@ impl Lowerer {
         } else if let Some(m) = motion_here {
             self.motion = m;
         }
-        let m_list: Vec<Code> = m_codes.iter().map(|(c, _)| *c).collect();
-        let passthrough_m: Vec<Word<'_>> = m_codes
+        let m_list: Small<Code> = m_codes.iter().map(|(c, _)| *c).collect();
+        let passthrough_m: Small<Word<'_>> = m_codes
             .iter()
             .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
             .map(|(_, w)| *w)
@@ -833,8 +1015,14 @@ impl Lowerer {
         {
             if f.value < 0.0 {
                 diags.push(
-                    err("gcode::feed", format!("negative feed `{}`", f.text), f.start, f.end)
-                        .with_help("F is a speed and must not be negative"),
+                    err(
+                        "gcode::feed",
+                        format!("negative feed `{}`", f.text),
+                        f.start,
+                        f.end,
+                    )
+                    .with_label("below zero")
+                    .with_help("F is a speed and must not be negative"),
                 );
                 return;
             }
@@ -847,10 +1035,12 @@ impl Lowerer {
             feed_written = true;
         }
 
-        let mut blocks: Vec<Block> = Vec::new();
+        // Blocks go straight to `out`; the line's comments go on the first of them.
+        let first = out.len();
+        let blocks = &mut *out;
         // Pass-through command words (everything the IR does not model).
-        let command_words: Vec<Word<'_>> = {
-            let mut v: Vec<Word<'_>> = other_g
+        let command_words: Small<Word<'_>> = {
+            let mut v: Small<Word<'_>> = other_g
                 .iter()
                 .chain(passthrough_m.iter())
                 .chain(rest.iter())
@@ -876,8 +1066,11 @@ impl Lowerer {
                     if named.is_empty() {
                         // RepRapFirmware and Marlin: G92 with no axes does nothing useful.
                         diags.push(
-                            Diagnostic::warning("gcode::g92-empty", "G92 without axis words changes nothing")
-                                .at_bytes(line_no, text, 0, text.len()),
+                            Diagnostic::warning(
+                                "gcode::g92-empty",
+                                "G92 without axis words changes nothing",
+                            )
+                            .at_bytes(line_no, text, 0, text.len()),
                         );
                     }
                     for a in named.iter() {
@@ -908,9 +1101,16 @@ impl Lowerer {
                 }
             }
             if !command_words.is_empty() {
-                blocks.push(self.command(span, &command_words, &g_list, &m_list, named, false));
+                blocks.push_back(self.command(
+                    span,
+                    &command_words,
+                    &g_list,
+                    &m_list,
+                    named,
+                    false,
+                ));
             }
-            blocks.push(Block::new(
+            blocks.push_back(Block::new(
                 span,
                 BlockKind::Offset(OffsetChange {
                     code,
@@ -932,20 +1132,33 @@ impl Lowerer {
                 _ => None,
             };
             match seconds {
-                Some(seconds) if seconds >= 0.0 => blocks.push(Block::new(span, BlockKind::Dwell { seconds })),
+                Some(seconds) if seconds >= 0.0 => {
+                    blocks.push_back(Block::new(span, BlockKind::Dwell { seconds }))
+                }
                 _ => {
                     // Dialect dwells (`G4 F0.25`, bare `G4`) pass through as written.
-                    let mut words: Vec<Word<'_>> = words.iter().filter(|w| w.letter != 'N').copied().collect();
+                    let mut words: Small<Word<'_>> =
+                        words.iter().filter(|w| w.letter != 'N').copied().collect();
                     words.sort_by_key(|w| w.start);
-                    blocks.push(self.command(span, &words, &g_list, &m_list, AxisSet::EMPTY, false));
+                    blocks.push_back(self.command(
+                        span,
+                        &words,
+                        &g_list,
+                        &m_list,
+                        AxisSet::EMPTY,
+                        false,
+                    ));
                 }
             }
         } else if axis_user {
             let mut words = command_words.clone();
             words.extend(named.iter().filter_map(|a| axes[a.index()]));
             words.sort_by_key(|w| w.start);
-            blocks.push(self.command(span, &words, &g_list, &m_list, named, true));
-            for a in bare.iter().filter_map(|(_, l)| Axis::from_letter(l.chars().next().unwrap_or(' '))) {
+            blocks.push_back(self.command(span, &words, &g_list, &m_list, named, true));
+            for a in bare
+                .iter()
+                .filter_map(|(_, l)| Axis::from_letter(l.chars().next().unwrap_or(' ')))
+            {
                 self.pos.forget(std::iter::once(a).collect());
             }
         } else if !named.is_empty() || (motion_here.is_some() && !bare.is_empty()) {
@@ -964,25 +1177,51 @@ impl Lowerer {
                         .with_label("passes through unchanged")
                         .with_help("the block is copied as written; positions after it are treated as unknown"),
                     );
-                    blocks.push(self.verbatim(text, span, VerbatimReason::Unevaluated, AxisSet::ALL, Placement::TopLevel { keeps_modes: true }));
+                    blocks.push_back(self.verbatim(
+                        text,
+                        span,
+                        VerbatimReason::Unevaluated,
+                        AxisSet::ALL,
+                        Placement::TopLevel { keeps_modes: true },
+                    ));
                 }
                 MotionMode::None => {
                     let w = named.iter().find_map(|a| axes[a.index()]);
                     let (s, e) = w.map_or((0, text.len()), |w| (w.start, w.end));
                     diags.push(
-                        err("gcode::no-motion-mode", "axis words with no motion mode in force".into(), s, e)
-                            .with_label("where should this go?")
-                            .with_help("start the block with G0 or G1"),
+                        err(
+                            "gcode::no-motion-mode",
+                            "axis words with no motion mode in force".into(),
+                            s,
+                            e,
+                        )
+                        .with_label("where should this go?")
+                        .with_help("start the block with G0 or G1"),
                     );
                     return;
                 }
                 mode => {
-                    if !passthrough_m.is_empty() || !other_g.is_empty() || !rest.is_empty() || machine_frame {
+                    if !passthrough_m.is_empty()
+                        || !other_g.is_empty()
+                        || !rest.is_empty()
+                        || machine_frame
+                    {
                         // Words other than the move's ride along on the same line.
                     }
-                    let extra: Vec<&str> = command_words.iter().map(|w| w.text).collect();
-                    match self.motion_block(text, span, mode, &axes, &params, named, machine_frame, feed_written, extra, diags) {
-                        Some(b) => blocks.push(b),
+                    let extra: Small<&str> = command_words.iter().map(|w| w.text).collect();
+                    match self.motion_block(
+                        text,
+                        span,
+                        mode,
+                        &axes,
+                        &params,
+                        named,
+                        machine_frame,
+                        feed_written,
+                        extra,
+                        diags,
+                    ) {
+                        Some(b) => blocks.push_back(b),
                         None => return,
                     }
                 }
@@ -999,20 +1238,25 @@ impl Lowerer {
             if let BlockKind::Command(c) = &mut cmd.kind {
                 c.text = strip_line_number_and_comments(text);
             }
-            blocks.push(cmd);
+            blocks.push_back(cmd);
         } else if !command_words.is_empty() {
-            blocks.push(self.command(span, &command_words, &g_list, &m_list, AxisSet::EMPTY, false));
+            blocks.push_back(self.command(
+                span,
+                &command_words,
+                &g_list,
+                &m_list,
+                AxisSet::EMPTY,
+                false,
+            ));
         }
 
-        if blocks.is_empty() {
-            if !comments.is_empty() {
-                blocks.push(Block::new(span, BlockKind::Comment));
-            } else {
+        if out.len() == first {
+            if comments.is_empty() {
                 return;
             }
+            out.push_back(Block::new(span, BlockKind::Comment));
         }
-        blocks[0].comments = comments;
-        out.extend(blocks);
+        out[first].comments = comments;
     }
 
     fn unit(&self, axis: Axis) -> f64 {
@@ -1093,7 +1337,7 @@ impl Lowerer {
         named: AxisSet,
         machine_frame: bool,
         feed_written: bool,
-        extra: Vec<&str>,
+        extra: Small<&str>,
         diags: &mut Vec<Diagnostic>,
     ) -> Option<Block> {
         let line_no = span.line;
@@ -1154,7 +1398,9 @@ impl Lowerer {
                     if p.value < 1.0 || p.value.fract() != 0.0 {
                         diags.push(
                             Diagnostic::error("gcode::arc-turns", format!("`{}`: P must be a whole number of turns, 1 or more", p.text))
-                                .at_bytes(line_no, text, p.start, p.end),
+                                .at_bytes(line_no, text, p.start, p.end)
+                                .with_label("not a whole number of turns")
+                                .with_help("P counts full turns of the arc: P1 is a plain arc, P2 adds one more turn"),
                         );
                         return None;
                     }
@@ -1163,13 +1409,18 @@ impl Lowerer {
                 let arc_err = |msg: String, help: &str| {
                     Diagnostic::error("gcode::arc", msg)
                         .at_bytes(line_no, text, 0, text.len())
+                        .with_label("this arc")
                         .with_help(help.to_string())
                 };
                 if let Some(w) = off_n {
                     diags.push(
                         Diagnostic::error(
                             "gcode::arc",
-                            format!("`{}` is not used by an arc in the {} plane", w.text, self.plane.gcode()),
+                            format!(
+                                "`{}` is not used by an arc in the {} plane",
+                                w.text,
+                                self.plane.gcode()
+                            ),
                         )
                         .at_bytes(line_no, text, w.start, w.end)
                         .with_help(format!(
@@ -1204,10 +1455,7 @@ impl Lowerer {
                         let du = off_u.map_or(0.0, |w| w.value * unit);
                         let dv = off_v.map_or(0.0, |w| w.value * unit);
                         let c = if self.arc_center_absolute {
-                            [
-                                du - self.offsets[u.index()],
-                                dv - self.offsets[v.index()],
-                            ]
+                            [du - self.offsets[u.index()], dv - self.offsets[v.index()]]
                         } else {
                             [s2[0] + du, s2[1] + dv]
                         };
@@ -1257,7 +1505,10 @@ impl Lowerer {
                         let half = d / 2.0;
                         let tol = self.options.arc_tolerance.max(1e-3 * radius.abs());
                         if radius == 0.0 {
-                            diags.push(arc_err("arc radius R0 is not a circle".into(), "give the arc's radius"));
+                            diags.push(arc_err(
+                                "arc radius R0 is not a circle".into(),
+                                "give the arc's radius",
+                            ));
                             return None;
                         }
                         if half > radius.abs() + tol {
@@ -1286,7 +1537,11 @@ impl Lowerer {
                         let dir = [(e2[0] - s2[0]) / d, (e2[1] - s2[1]) / d];
                         // Right of the chord for G2 with R > 0, left for G3; flipped by R < 0.
                         let right = [dir[1], -dir[0]];
-                        let sign = if clockwise == (radius > 0.0) { 1.0 } else { -1.0 };
+                        let sign = if clockwise == (radius > 0.0) {
+                            1.0
+                        } else {
+                            -1.0
+                        };
                         [mid[0] + sign * h * right[0], mid[1] + sign * h * right[1]]
                     }
                 };
@@ -1302,11 +1557,18 @@ impl Lowerer {
             }
             MotionMode::None | MotionMode::Unsupported => return None,
         };
-        if self.feed_mode == FeedMode::InverseTime && !matches!(kind, MotionKind::Rapid) && !feed_written {
+        if self.feed_mode == FeedMode::InverseTime
+            && !matches!(kind, MotionKind::Rapid)
+            && !feed_written
+        {
             diags.push(
-                Diagnostic::error("gcode::inverse-time-feed", "in inverse time mode (G93) every feed move needs F")
-                    .at_bytes(line_no, text, 0, text.len())
-                    .with_help("add F (1/minutes for this block) or switch to G94"),
+                Diagnostic::error(
+                    "gcode::inverse-time-feed",
+                    "in inverse time mode (G93) every feed move needs F",
+                )
+                .at_bytes(line_no, text, 0, text.len())
+                .with_label("no F on this move")
+                .with_help("add F (1/minutes for this block) or switch to G94"),
             );
             return None;
         }
@@ -1378,12 +1640,55 @@ fn plane_offset_letters(plane: Plane) -> (char, char, char) {
     }
 }
 
+/// Parses a G-code decimal (`-1.25`, `.5`, `3.`): exactly as `str::parse::<f64>`, with a
+/// fast path for up to 15 digits, where the digits form an exact integer and dividing by
+/// an exact power of ten rounds once, correctly (Clinger's fast path).
+pub(super) fn parse_decimal(s: &str) -> Option<f64> {
+    const POW10: [f64; 16] = [
+        1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+    ];
+    let bytes = s.as_bytes();
+    let (negative, digits) = match bytes.first() {
+        Some(b'-') => (true, &bytes[1..]),
+        Some(b'+') => (false, &bytes[1..]),
+        _ => (false, bytes),
+    };
+    let mut mantissa: u64 = 0;
+    let mut count = 0usize;
+    let mut frac: Option<usize> = None;
+    for &b in digits {
+        match b {
+            b'0'..=b'9' => {
+                mantissa = mantissa * 10 + (b - b'0') as u64;
+                count += 1;
+                if let Some(f) = &mut frac {
+                    *f += 1;
+                }
+                if count > 15 {
+                    return s.parse().ok();
+                }
+            }
+            b'.' if frac.is_none() => frac = Some(0),
+            _ => return s.parse().ok(),
+        }
+    }
+    if count == 0 {
+        return None;
+    }
+    let value = mantissa as f64 / POW10[frac.unwrap_or(0)];
+    Some(if negative { -value } else { value })
+}
+
 /// Letter (upper case) and number (without blanks) of a word token.
-fn split_word(w: &str) -> (char, String) {
-    let mut chars = w.chars();
-    let letter = chars.next().unwrap_or(' ').to_ascii_uppercase();
-    let number: String = chars.filter(|c| !c.is_whitespace()).collect();
-    (letter, number)
+fn split_word(w: &str) -> (char, std::borrow::Cow<'_, str>) {
+    let letter = w.chars().next().unwrap_or(' ');
+    let number = &w[letter.len_utf8()..];
+    let number = if number.bytes().any(|b| b == b' ' || b == b'\t') {
+        std::borrow::Cow::Owned(number.chars().filter(|c| !c.is_whitespace()).collect())
+    } else {
+        std::borrow::Cow::Borrowed(number)
+    };
+    (letter.to_ascii_uppercase(), number)
 }
 
 /// The number part of a word, as a slice (blanks inside are rare; they are kept).
@@ -1393,14 +1698,23 @@ fn number_slice(w: &str) -> &str {
 
 fn normalise_word(w: &str) -> String {
     let (letter, number) = split_word(w);
-    format!("{letter}{number}")
+    let mut s = String::with_capacity(w.len());
+    s.push(letter);
+    s.push_str(&number);
+    s
 }
 
 fn letter_error(line_no: u32, text: &str, s: usize, l: &str) -> Diagnostic {
-    Diagnostic::error("gcode::letter-without-number", format!("letter `{l}` has no number"))
-        .at_bytes(line_no, text, s, s + l.len())
-        .with_label("needs a value")
-        .with_help(format!("write a value after it (for example `{}0`) or remove it", l.to_ascii_uppercase()))
+    Diagnostic::error(
+        "gcode::letter-without-number",
+        format!("letter `{l}` has no number"),
+    )
+    .at_bytes(line_no, text, s, s + l.len())
+    .with_label("needs a value")
+    .with_help(format!(
+        "write a value after it (for example `{}0`) or remove it",
+        l.to_ascii_uppercase()
+    ))
 }
 
 fn contains_m99(text: &str) -> bool {
@@ -1418,8 +1732,21 @@ fn contains_m99(text: &str) -> bool {
 /// The o-word keyword of a LinuxCNC control line (`o100 sub`, `o<x> if [..]`).
 fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<&'a str> {
     const KEYWORDS: &[&str] = &[
-        "sub", "endsub", "call", "return", "if", "elseif", "else", "endif", "while", "endwhile",
-        "do", "repeat", "endrepeat", "break", "continue",
+        "sub",
+        "endsub",
+        "call",
+        "return",
+        "if",
+        "elseif",
+        "else",
+        "endif",
+        "while",
+        "endwhile",
+        "do",
+        "repeat",
+        "endrepeat",
+        "break",
+        "continue",
     ];
     let first = toks.first()?.1;
     let starts_o = match first {
@@ -1476,10 +1803,17 @@ pub(super) fn not_utf8(span: Span, valid_up_to: usize, lossy: &str) -> Diagnosti
         .with_help("G-code is text; check that the file is not binary or in another encoding (save it as UTF-8)")
 }
 
-fn parse_error(line_no: u32, text: &str, err: lalrpop_util::ParseError<usize, Tok<'_>, ()>) -> Diagnostic {
+fn parse_error(
+    line_no: u32,
+    text: &str,
+    err: lalrpop_util::ParseError<usize, Tok<'_>, ()>,
+) -> Diagnostic {
     use lalrpop_util::ParseError as P;
     let (s, e, what) = match err {
-        P::UnrecognizedToken { token: (s, t, e), .. } | P::ExtraToken { token: (s, t, e) } => (s, e, describe(t)),
+        P::UnrecognizedToken {
+            token: (s, t, e), ..
+        }
+        | P::ExtraToken { token: (s, t, e) } => (s, e, describe(t)),
         P::InvalidToken { location } => (location, location + 1, "this".to_string()),
         P::UnrecognizedEof { location, .. } => (location, location, "the end of the line".into()),
         P::User { .. } => (0, text.len(), "the line".into()),
@@ -1494,9 +1828,43 @@ fn describe(t: Tok<'_>) -> String {
     match t {
         Tok::Checksum(c) => format!("checksum `{c}`"),
         Tok::Slash(s) => format!("block delete `{s}`"),
-        Tok::Word(w) | Tok::Letter(w) | Tok::Ident(w) | Tok::Number(w) | Tok::Other(w) => format!("`{w}`"),
-        Tok::Comment(c) | Tok::OpenComment(c) | Tok::LineComment(c) | Tok::Str(c) => format!("`{c}`"),
+        Tok::Word(w) | Tok::Letter(w) | Tok::Ident(w) | Tok::Number(w) | Tok::Other(w) => {
+            format!("`{w}`")
+        }
+        Tok::Comment(c) | Tok::OpenComment(c) | Tok::LineComment(c) | Tok::Str(c) => {
+            format!("`{c}`")
+        }
         Tok::Percent => "`%`".into(),
         Tok::OpenParen => "`(`".into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::parse_decimal;
+
+    #[test]
+    fn decimal_fast_path_matches_std() {
+        for s in [
+            "0",
+            "-0",
+            "1.",
+            ".5",
+            "-.5",
+            "+2.25",
+            "123.456789",
+            "0.1",
+            "99999.99999",
+            "1234567890.12345",
+            "0.30000000000000004",
+        ] {
+            assert_eq!(parse_decimal(s), s.parse::<f64>().ok(), "{s}");
+        }
+        for i in 0..200_000u64 {
+            let s = format!("{}.{:05}", i / 7, (i * 7919) % 100_000);
+            assert_eq!(parse_decimal(&s), s.parse::<f64>().ok(), "{s}");
+        }
+        assert_eq!(parse_decimal("."), None);
+        assert_eq!(parse_decimal("1.2.3"), None);
     }
 }

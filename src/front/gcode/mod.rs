@@ -85,13 +85,13 @@ impl<R: BufRead> Parser<R> {
     }
 
     fn read_more(&mut self, diags: &mut Vec<Diagnostic>) {
-        let mut out = Vec::new();
+        let out = &mut self.pending;
         while out.is_empty() && !self.done {
             match self.reader.next_line() {
                 Ok(Some((raw, span))) => {
                     self.lines += 1;
                     match raw {
-                        RawLine::Text(text) => self.lower.line(text, span, &mut out, diags),
+                        RawLine::Text(text) => self.lower.line(text, span, out, diags),
                         RawLine::TooLong => diags.push(
                             Diagnostic::error(
                                 "gcode::line-too-long",
@@ -113,10 +113,15 @@ impl<R: BufRead> Parser<R> {
                 }
                 Ok(None) => {
                     self.done = true;
-                    if self.lines == 0 {
+                    if self.lines == 0 || !self.lower.saw_text() {
+                        let what = if self.lines == 0 {
+                            "the input is empty"
+                        } else {
+                            "the input has only blank lines"
+                        };
                         diags.push(
-                            Diagnostic::error("gcode::empty", "the input is empty")
-                                .with_help("give a file with at least one G-code line"),
+                            Diagnostic::error("gcode::empty", what)
+                                .with_help("give a file with at least one G-code line or comment"),
                         );
                     }
                     self.lower.finish(diags);
@@ -130,7 +135,6 @@ impl<R: BufRead> Parser<R> {
                 }
             }
         }
-        self.pending.extend(out);
     }
 }
 
@@ -149,21 +153,32 @@ impl<R: BufRead> Frontend for Parser<R> {
 
 /// Lexes and parses one plain line into its syntax tree, without lowering; `None` when
 /// the line is not in the plain block grammar (expressions, dialect statements) or has a
-/// syntax error. For tools and benchmarks that want the syntax only.
+/// syntax error. `items` receives the line's items (cleared first). For tools and
+/// benchmarks that want the syntax only.
 ///
 /// ```
-/// let mut toks = Vec::new();
-/// let line = ncpost::front::gcode::parse_line("N10 G1 X2 ; cut", &mut toks).unwrap();
-/// assert_eq!(line.items.len(), 3);
-/// assert_eq!(line.tail.map(|t| t.1), Some("; cut"));
+/// let (mut toks, mut items) = (Vec::new(), Vec::new());
+/// let line = ncpost::front::gcode::parse_line("N10 G1 X2 ; cut", &mut toks, &mut items).unwrap();
+/// assert_eq!(items.len(), 3);
+/// assert_eq!(line.tail, Some((10, 15)));
 /// ```
-pub fn parse_line<'a>(line: &'a str, toks: &mut Vec<lexer::Spanned<'a>>) -> Option<ast::Line<'a>> {
+pub fn parse_line<'a>(
+    line: &'a str,
+    toks: &mut Vec<lexer::Spanned<'a>>,
+    items: &mut Vec<ast::Item>,
+) -> Option<ast::Line> {
     lexer::lex_line(line, toks);
-    if toks.iter().any(|t| matches!(t.1, lexer::Tok::Other(_) | lexer::Tok::Ident(_) | lexer::Tok::Number(_))) {
+    items.clear();
+    if toks.iter().any(|t| {
+        matches!(
+            t.1,
+            lexer::Tok::Other(_) | lexer::Tok::Ident(_) | lexer::Tok::Number(_)
+        )
+    }) {
         return None;
     }
     grammar::LineParser::new()
-        .parse(toks.iter().copied().map(Ok::<_, ()>))
+        .parse(items, toks.iter().copied().map(Ok::<_, ()>))
         .ok()
 }
 
