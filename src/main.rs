@@ -204,7 +204,7 @@ fn run(
         pipeline.run_gcode(input, io::sink(), &mut |d| printer.print(d))
     } else {
         match output.filter(|o| o.as_os_str() != "-") {
-            None => pipeline.run_gcode(input, io::stdout().lock(), &mut |d| printer.print(d)),
+            None => pipeline.run_gcode(input, io::stdout(), &mut |d| printer.print(d)),
             Some(path) => {
                 if !stdin_input && same_file(&args.input, path) {
                     return usage(format!(

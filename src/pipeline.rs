@@ -148,25 +148,86 @@ impl Pipeline {
     }
 
     /// Reads G-code from `input` and writes the preset's output format to `output`.
-    /// Diagnostics go to `on_diag` as they occur. `Err` only for I/O failures of the
-    /// writer; input errors are counted in the summary.
+    /// Diagnostics go to `on_diag` as they occur (the backend's at the end). `Err` only for
+    /// I/O failures of the writer; input errors are counted in the summary.
+    ///
+    /// The backend runs on a second thread, fed with batches of blocks through a bounded
+    /// channel, so reading and writing overlap and memory stays bounded.
     pub fn run_gcode(
         &mut self,
         input: impl BufRead,
-        output: impl Write,
+        output: impl Write + Send,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Result<Summary, Diagnostic> {
+        const BATCH: usize = 512;
         let mut front = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
-        let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
-        let mut backend: Box<dyn Backend + '_> = match self.preset.emit {
-            Emit::Rrf => Box::new(back::rrf::Writer::new(&mut out, &self.preset.rrf)),
-            Emit::Gcode => Box::new(back::gcode::Writer::new(&mut out, &self.preset.gcode)),
-            Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
-        };
-        let summary = self.run(&mut front, backend.as_mut(), on_diag);
-        drop(backend);
-        out.flush().map_err(back::io_error)?;
-        Ok(summary)
+        let preset = self.preset.clone();
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Block>>(4);
+        let (summary, written, back_diags) = std::thread::scope(|scope| {
+            let writer = scope.spawn(move || {
+                let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
+                let mut diags = Vec::new();
+                let mut written = 0u64;
+                {
+                    let mut backend: Box<dyn Backend + '_> = match preset.emit {
+                        Emit::Rrf => Box::new(back::rrf::Writer::new(&mut out, &preset.rrf)),
+                        Emit::Gcode => Box::new(back::gcode::Writer::new(&mut out, &preset.gcode)),
+                        Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
+                    };
+                    for batch in rx {
+                        for b in &batch {
+                            written += 1;
+                            if let Err(d) = backend.write_block(b, &mut diags) {
+                                diags.push(d);
+                            }
+                        }
+                    }
+                    if let Err(d) = backend.finish() {
+                        diags.push(d);
+                    }
+                }
+                if let Err(e) = out.flush() {
+                    diags.push(back::io_error(e));
+                }
+                (written, diags)
+            });
+            let mut batch = Vec::with_capacity(BATCH);
+            let mut deliver = |b: Block, _: &mut Vec<Diagnostic>| {
+                batch.push(b);
+                if batch.len() == BATCH {
+                    // A closed channel means the writer stopped; its error comes at join.
+                    let _ = tx.send(std::mem::replace(&mut batch, Vec::with_capacity(BATCH)));
+                }
+            };
+            let summary = self.run_into(&mut front, &mut deliver, on_diag);
+            if !batch.is_empty() {
+                let _ = tx.send(batch);
+            }
+            drop(tx);
+            let (written, diags) = writer.join().unwrap_or_else(|_| {
+                (0, vec![Diagnostic::error("back::panic", "the backend stopped unexpectedly")])
+            });
+            (summary, written, diags)
+        });
+        let mut summary = summary;
+        summary.blocks_out = written;
+        let mut io_error = None;
+        for d in back_diags {
+            match d.severity {
+                Severity::Error => summary.errors += 1,
+                Severity::Warning => summary.warnings += 1,
+                Severity::Note => {}
+            }
+            if d.code == "io::write" && io_error.is_none() {
+                io_error = Some(d);
+            } else {
+                on_diag(d);
+            }
+        }
+        match io_error {
+            Some(d) => Err(d),
+            None => Ok(summary),
+        }
     }
 
     /// Runs `front` through the passes into `back`.
@@ -176,18 +237,39 @@ impl Pipeline {
         back: &mut dyn Backend,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Summary {
+        let mut deliver = |b: Block, diags: &mut Vec<Diagnostic>| {
+            if let Err(d) = back.write_block(&b, diags) {
+                diags.push(d);
+            }
+        };
+        let mut summary = self.run_into(front, &mut deliver, on_diag);
+        let mut diags = Vec::new();
+        if let Err(d) = back.finish() {
+            diags.push(d);
+        }
+        report(&mut diags, on_diag, &mut summary);
+        summary
+    }
+
+    /// Runs `front` through the passes, handing every resulting block to `deliver`.
+    fn run_into(
+        &mut self,
+        front: &mut dyn Frontend,
+        deliver: &mut dyn FnMut(Block, &mut Vec<Diagnostic>),
+        on_diag: &mut dyn FnMut(Diagnostic),
+    ) -> Summary {
         let mut summary = Summary::default();
         let mut diags = Vec::new();
         let mut cur: Vec<Block> = Vec::with_capacity(8);
         let mut next: Vec<Block> = Vec::with_capacity(8);
         let mut counter = 0u32;
-        loop {
-            let block = front.next_block(&mut diags);
-            let Some(block) = block else { break };
+        while let Some(block) = front.next_block(&mut diags) {
             summary.blocks_in += 1;
             cur.push(block);
-            self.flow(0, &mut cur, &mut next, &mut diags, back, &mut summary);
-            report(&mut diags, on_diag, &mut summary);
+            self.flow(0, &mut cur, &mut next, &mut diags, deliver, &mut summary);
+            if !diags.is_empty() {
+                report(&mut diags, on_diag, &mut summary);
+            }
             counter += 1;
             if counter == 1 << 14 {
                 counter = 0;
@@ -199,10 +281,7 @@ impl Pipeline {
         report(&mut diags, on_diag, &mut summary);
         for i in 0..self.passes.len() {
             self.passes[i].finish(&mut Output::new(&mut cur, &mut diags));
-            self.flow(i + 1, &mut cur, &mut next, &mut diags, back, &mut summary);
-        }
-        if let Err(d) = back.finish() {
-            diags.push(d);
+            self.flow(i + 1, &mut cur, &mut next, &mut diags, deliver, &mut summary);
         }
         if let Some(d) = &mut self.dump {
             let _ = d.flush();
@@ -218,7 +297,7 @@ impl Pipeline {
         cur: &mut Vec<Block>,
         next: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
-        back: &mut dyn Backend,
+        deliver: &mut dyn FnMut(Block, &mut Vec<Diagnostic>),
         summary: &mut Summary,
     ) {
         if self.dump_at == Some(from) {
@@ -236,9 +315,7 @@ impl Pipeline {
         }
         for b in cur.drain(..) {
             summary.blocks_out += 1;
-            if let Err(d) = back.write_block(&b, diags) {
-                diags.push(d);
-            }
+            deliver(b, diags);
         }
     }
 
