@@ -191,18 +191,13 @@ impl Pipeline {
                 }
                 (written, diags)
             });
-            let mut batch = Vec::with_capacity(BATCH);
-            let mut deliver = |b: Block, _: &mut Vec<Diagnostic>| {
-                batch.push(b);
-                if batch.len() == BATCH {
+            let mut deliver = |blocks: &mut Vec<Block>, _: &mut Vec<Diagnostic>| {
+                if !blocks.is_empty() {
                     // A closed channel means the writer stopped; its error comes at join.
-                    let _ = tx.send(std::mem::replace(&mut batch, Vec::with_capacity(BATCH)));
+                    let _ = tx.send(std::mem::replace(blocks, Vec::with_capacity(BATCH)));
                 }
             };
-            let summary = self.run_into(&mut front, &mut deliver, on_diag);
-            if !batch.is_empty() {
-                let _ = tx.send(batch);
-            }
+            let summary = self.run_into(&mut front, BATCH, &mut deliver, on_diag);
             drop(tx);
             let (written, diags) = writer.join().unwrap_or_else(|_| {
                 (0, vec![Diagnostic::error("back::panic", "the backend stopped unexpectedly")])
@@ -237,12 +232,14 @@ impl Pipeline {
         back: &mut dyn Backend,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Summary {
-        let mut deliver = |b: Block, diags: &mut Vec<Diagnostic>| {
-            if let Err(d) = back.write_block(&b, diags) {
-                diags.push(d);
+        let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
+            for b in blocks.drain(..) {
+                if let Err(d) = back.write_block(&b, diags) {
+                    diags.push(d);
+                }
             }
         };
-        let mut summary = self.run_into(front, &mut deliver, on_diag);
+        let mut summary = self.run_into(front, 1, &mut deliver, on_diag);
         let mut diags = Vec::new();
         if let Err(d) = back.finish() {
             diags.push(d);
@@ -251,27 +248,33 @@ impl Pipeline {
         summary
     }
 
-    /// Runs `front` through the passes, handing every resulting block to `deliver`.
+    /// Runs `front` through the passes, `batch` blocks at a time, handing the resulting
+    /// blocks to `deliver` (which empties or replaces the vector).
     fn run_into(
         &mut self,
         front: &mut dyn Frontend,
-        deliver: &mut dyn FnMut(Block, &mut Vec<Diagnostic>),
+        batch: usize,
+        deliver: &mut dyn FnMut(&mut Vec<Block>, &mut Vec<Diagnostic>),
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Summary {
         let mut summary = Summary::default();
         let mut diags = Vec::new();
-        let mut cur: Vec<Block> = Vec::with_capacity(8);
-        let mut next: Vec<Block> = Vec::with_capacity(8);
-        let mut counter = 0u32;
-        while let Some(block) = front.next_block(&mut diags) {
-            summary.blocks_in += 1;
-            cur.push(block);
+        let mut cur: Vec<Block> = Vec::with_capacity(batch);
+        let mut next: Vec<Block> = Vec::with_capacity(batch);
+        let mut counter = 0u64;
+        loop {
+            cur.clear();
+            front.next_batch(&mut cur, batch, &mut diags);
+            if cur.is_empty() {
+                break;
+            }
+            summary.blocks_in += cur.len() as u64;
+            counter += cur.len() as u64;
             self.flow(0, &mut cur, &mut next, &mut diags, deliver, &mut summary);
             if !diags.is_empty() {
                 report(&mut diags, on_diag, &mut summary);
             }
-            counter += 1;
-            if counter == 1 << 14 {
+            if counter >= 1 << 14 {
                 counter = 0;
                 if let Some(p) = &mut self.progress {
                     p(front.bytes_read());
@@ -280,6 +283,7 @@ impl Pipeline {
         }
         report(&mut diags, on_diag, &mut summary);
         for i in 0..self.passes.len() {
+            cur.clear();
             self.passes[i].finish(&mut Output::new(&mut cur, &mut diags));
             self.flow(i + 1, &mut cur, &mut next, &mut diags, deliver, &mut summary);
         }
@@ -290,14 +294,14 @@ impl Pipeline {
         summary
     }
 
-    /// Sends the blocks in `cur` through passes `from..` and the backend.
+    /// Sends the blocks in `cur` through passes `from..` and on to `deliver`.
     fn flow(
         &mut self,
         from: usize,
         cur: &mut Vec<Block>,
         next: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
-        deliver: &mut dyn FnMut(Block, &mut Vec<Diagnostic>),
+        deliver: &mut dyn FnMut(&mut Vec<Block>, &mut Vec<Diagnostic>),
         summary: &mut Summary,
     ) {
         if self.dump_at == Some(from) {
@@ -305,6 +309,7 @@ impl Pipeline {
         }
         for i in from..self.passes.len() {
             let pass = &mut self.passes[i];
+            next.clear();
             for b in cur.drain(..) {
                 pass.run(b, &mut Output::new(next, diags));
             }
@@ -313,10 +318,8 @@ impl Pipeline {
                 self.dump_blocks(cur);
             }
         }
-        for b in cur.drain(..) {
-            summary.blocks_out += 1;
-            deliver(b, diags);
-        }
+        summary.blocks_out += cur.len() as u64;
+        deliver(cur, diags);
     }
 
     fn dump_blocks(&mut self, blocks: &[Block]) {

@@ -14,6 +14,18 @@ pub trait Frontend {
     /// the next line so one run reports every bad line.
     fn next_block(&mut self, diags: &mut Vec<Diagnostic>) -> Option<Block>;
 
+    /// Appends blocks to `out` until it holds about `max` or the input ends (a line may
+    /// give several blocks); appends nothing only at the end. Lets a pipeline take blocks
+    /// in batches without moving each one through `next_block`.
+    fn next_batch(&mut self, out: &mut Vec<Block>, max: usize, diags: &mut Vec<Diagnostic>) {
+        while out.len() < max {
+            match self.next_block(diags) {
+                Some(b) => out.push(b),
+                None => break,
+            }
+        }
+    }
+
     /// Bytes consumed so far (for progress reports).
     fn bytes_read(&self) -> u64;
 }

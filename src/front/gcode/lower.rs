@@ -2,7 +2,6 @@
 
 use nalgebra::Vector3;
 use smallvec::SmallVec;
-use std::collections::VecDeque;
 
 /// Per-line scratch lists live on the stack.
 type Small<T> = SmallVec<[T; 8]>;
@@ -253,7 +252,7 @@ impl Lowerer {
         &mut self,
         text: &str,
         span: Span,
-        out: &mut VecDeque<Block>,
+        out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
         let trimmed = text.trim();
@@ -286,7 +285,7 @@ impl Lowerer {
         // A RepRapFirmware meta block: its body is the lines indented deeper.
         if let Some(k) = self.meta_indent {
             if indent > k {
-                out.push_back(self.verbatim(
+                out.push(self.verbatim(
                     text,
                     span,
                     VerbatimReason::ControlFlow,
@@ -298,7 +297,7 @@ impl Lowerer {
             self.meta_indent = None;
         }
         if self.in_subprogram {
-            out.push_back(self.verbatim(
+            out.push(self.verbatim(
                 text,
                 span,
                 VerbatimReason::Subprogram,
@@ -332,7 +331,7 @@ impl Lowerer {
                          positions after it are treated as unknown",
                     ),
                 );
-                out.push_back(self.verbatim(
+                out.push(self.verbatim(
                     text,
                     span,
                     VerbatimReason::ControlFlow,
@@ -348,7 +347,7 @@ impl Lowerer {
             return;
         }
         if !self.oword_stack.is_empty() {
-            out.push_back(self.verbatim(
+            out.push(self.verbatim(
                 text,
                 span,
                 VerbatimReason::ControlFlow,
@@ -378,7 +377,7 @@ impl Lowerer {
                         "the expand-subprograms pass inlines M98 calls when it is available",
                     ),
                 );
-                out.push_back(self.verbatim(
+                out.push(self.verbatim(
                     text,
                     span,
                     VerbatimReason::Subprogram,
@@ -386,7 +385,7 @@ impl Lowerer {
                     Placement::Inside,
                 ));
             } else {
-                out.push_back(self.verbatim(
+                out.push(self.verbatim(
                     text,
                     span,
                     VerbatimReason::Delimiter,
@@ -403,7 +402,7 @@ impl Lowerer {
                     self.program_started = true;
                     let clob = self.command_clobbers(&toks);
                     self.pos.forget(clob);
-                    out.push_back(Block::new(
+                    out.push(Block::new(
                         span,
                         BlockKind::Command(Command {
                             text: text.trim().to_string(),
@@ -414,7 +413,7 @@ impl Lowerer {
                 }
                 Unplain::Unevaluated => {
                     let keeps_modes = !self.apply_plain_modes(&toks);
-                    out.push_back(self.verbatim(
+                    out.push(self.verbatim(
                         text,
                         span,
                         VerbatimReason::Unevaluated,
@@ -449,7 +448,7 @@ impl Lowerer {
         span: Span,
         toks: &[Spanned<'_>],
         keyword: &str,
-        out: &mut VecDeque<Block>,
+        out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
         let label = oword_label(text, toks);
@@ -497,7 +496,7 @@ impl Lowerer {
                 ),
             );
         }
-        out.push_back(self.verbatim(
+        out.push(self.verbatim(
             text,
             span,
             VerbatimReason::ControlFlow,
@@ -655,7 +654,7 @@ impl Lowerer {
         span: Span,
         line: Line,
         items: &[Item],
-        out: &mut VecDeque<Block>,
+        out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
         let line_no = span.line;
@@ -803,7 +802,7 @@ impl Lowerer {
                 ));
                 return;
             }
-            out.push_back(self.verbatim(
+            out.push(self.verbatim(
                 text,
                 span,
                 VerbatimReason::Delimiter,
@@ -824,7 +823,7 @@ impl Lowerer {
                     .with_label("optional block")
                     .with_help("the controller may skip it; it is copied as written and positions after it are unknown"),
             );
-            out.push_back(self.verbatim(
+            out.push(self.verbatim(
                 text,
                 span,
                 VerbatimReason::ControlFlow,
@@ -1101,7 +1100,7 @@ impl Lowerer {
                 }
             }
             if !command_words.is_empty() {
-                blocks.push_back(self.command(
+                blocks.push(self.command(
                     span,
                     &command_words,
                     &g_list,
@@ -1110,7 +1109,7 @@ impl Lowerer {
                     false,
                 ));
             }
-            blocks.push_back(Block::new(
+            blocks.push(Block::new(
                 span,
                 BlockKind::Offset(OffsetChange {
                     code,
@@ -1133,14 +1132,14 @@ impl Lowerer {
             };
             match seconds {
                 Some(seconds) if seconds >= 0.0 => {
-                    blocks.push_back(Block::new(span, BlockKind::Dwell { seconds }))
+                    blocks.push(Block::new(span, BlockKind::Dwell { seconds }))
                 }
                 _ => {
                     // Dialect dwells (`G4 F0.25`, bare `G4`) pass through as written.
                     let mut words: Small<Word<'_>> =
                         words.iter().filter(|w| w.letter != 'N').copied().collect();
                     words.sort_by_key(|w| w.start);
-                    blocks.push_back(self.command(
+                    blocks.push(self.command(
                         span,
                         &words,
                         &g_list,
@@ -1154,7 +1153,7 @@ impl Lowerer {
             let mut words = command_words.clone();
             words.extend(named.iter().filter_map(|a| axes[a.index()]));
             words.sort_by_key(|w| w.start);
-            blocks.push_back(self.command(span, &words, &g_list, &m_list, named, true));
+            blocks.push(self.command(span, &words, &g_list, &m_list, named, true));
             for a in bare
                 .iter()
                 .filter_map(|(_, l)| Axis::from_letter(l.chars().next().unwrap_or(' ')))
@@ -1177,7 +1176,7 @@ impl Lowerer {
                         .with_label("passes through unchanged")
                         .with_help("the block is copied as written; positions after it are treated as unknown"),
                     );
-                    blocks.push_back(self.verbatim(
+                    blocks.push(self.verbatim(
                         text,
                         span,
                         VerbatimReason::Unevaluated,
@@ -1221,7 +1220,7 @@ impl Lowerer {
                         extra,
                         diags,
                     ) {
-                        Some(b) => blocks.push_back(b),
+                        Some(b) => blocks.push(b),
                         None => return,
                     }
                 }
@@ -1238,9 +1237,9 @@ impl Lowerer {
             if let BlockKind::Command(c) = &mut cmd.kind {
                 c.text = strip_line_number_and_comments(text);
             }
-            blocks.push_back(cmd);
+            blocks.push(cmd);
         } else if !command_words.is_empty() {
-            blocks.push_back(self.command(
+            blocks.push(self.command(
                 span,
                 &command_words,
                 &g_list,
@@ -1254,7 +1253,7 @@ impl Lowerer {
             if comments.is_empty() {
                 return;
             }
-            out.push_back(Block::new(span, BlockKind::Comment));
+            out.push(Block::new(span, BlockKind::Comment));
         }
         out[first].comments = comments;
     }

@@ -67,7 +67,8 @@ impl Default for Options {
 pub struct Parser<R> {
     reader: LineReader<R>,
     lower: lower::Lowerer,
-    pending: std::collections::VecDeque<Block>,
+    /// Blocks lowered but not yet handed out by `next_block`, in reverse order.
+    pending: Vec<Block>,
     lines: u64,
     done: bool,
 }
@@ -78,15 +79,15 @@ impl<R: BufRead> Parser<R> {
         Parser {
             reader: LineReader::new(reader, options.max_line_len),
             lower: lower::Lowerer::new(options),
-            pending: Default::default(),
+            pending: Vec::new(),
             lines: 0,
             done: false,
         }
     }
 
-    fn read_more(&mut self, diags: &mut Vec<Diagnostic>) {
-        let out = &mut self.pending;
-        while out.is_empty() && !self.done {
+    /// Reads lines until `out` holds at least `want` blocks or the input ends.
+    fn read_into(&mut self, out: &mut Vec<Block>, want: usize, diags: &mut Vec<Diagnostic>) {
+        while out.len() < want && !self.done {
             match self.reader.next_line() {
                 Ok(Some((raw, span))) => {
                     self.lines += 1;
@@ -141,9 +142,19 @@ impl<R: BufRead> Parser<R> {
 impl<R: BufRead> Frontend for Parser<R> {
     fn next_block(&mut self, diags: &mut Vec<Diagnostic>) -> Option<Block> {
         if self.pending.is_empty() {
-            self.read_more(diags);
+            let mut blocks = std::mem::take(&mut self.pending);
+            self.read_into(&mut blocks, 1, diags);
+            blocks.reverse();
+            self.pending = blocks;
         }
-        self.pending.pop_front()
+        self.pending.pop()
+    }
+
+    fn next_batch(&mut self, out: &mut Vec<Block>, max: usize, diags: &mut Vec<Diagnostic>) {
+        while let Some(b) = self.pending.pop() {
+            out.push(b);
+        }
+        self.read_into(out, max, diags);
     }
 
     fn bytes_read(&self) -> u64 {
