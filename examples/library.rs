@@ -18,7 +18,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .build()?;
     let reader = BufReader::new(File::open(&input)?);
     let mut errors = 0;
-    let summary = pipeline.run_gcode(reader, stdout().lock(), &mut |d| {
+    let summary = pipeline.run_gcode(reader, stdout(), &mut |d| {
         if d.severity == Severity::Error {
             errors += 1;
         }

@@ -26,7 +26,9 @@ pub struct Options {
     pub modal_motion: bool,
     /// How E is written.
     pub extrusion: Extrusion,
-    /// `G4 P` in milliseconds (Fanuc, Marlin) rather than seconds (LinuxCNC).
+    /// `G4 P` in milliseconds (Fanuc, Marlin; the frontend's default reading, so the
+    /// number is kept) rather than seconds (LinuxCNC: set this and the frontend's
+    /// `dwell_p_milliseconds` to false).
     pub dwell_milliseconds: bool,
 }
 
@@ -40,7 +42,7 @@ impl Default for Options {
             checksums: false,
             modal_motion: false,
             extrusion: Extrusion::Relative,
-            dwell_milliseconds: false,
+            dwell_milliseconds: true,
         }
     }
 }

@@ -399,6 +399,18 @@ impl<W: Write> Emitter<W> {
             }
         }
         let is_arc = matches!(motion.kind, MotionKind::Arc(_));
+        if let MotionKind::Arc(arc) = motion.kind {
+            // An arc names its end point in the plane, even when it ends where it starts.
+            let (u, v, _) = arc.plane.axes();
+            for a in [u, v] {
+                if words[a.index()].is_none()
+                    && let Some(val) = target.get(a)
+                {
+                    let prog = val + self.offsets[a.index()];
+                    words[a.index()] = Some(to_units(prog, self.fmt.decimals.axis(a)).ok_or_else(|| too_large(a.letter(), prog, block))?);
+                }
+            }
+        }
         if !any && !is_arc {
             // A move that changes nothing keeps the axes it named.
             for a in motion.written.iter() {
@@ -440,7 +452,16 @@ impl<W: Write> Emitter<W> {
                 Plane::ZX => ('K', 'I'),
                 Plane::YZ => ('J', 'K'),
             };
-            let (Some(su), Some(sv)) = (self.pos.get(u), self.pos.get(v)) else {
+            // The controller starts the arc where the last printed numbers put it, so the
+            // centre offsets are taken from those, not from the unrounded position.
+            let d = self.fmt.decimals.linear;
+            let scale = 10f64.powi(d as i32);
+            let printed_start = |a: Axis, me: &Self| {
+                me.printed[a.index()]
+                    .map(|units| units as f64 / scale - me.offsets[a.index()])
+                    .or(me.pos.get(a))
+            };
+            let (Some(su), Some(sv)) = (printed_start(u, self), printed_start(v, self)) else {
                 return Err(Diagnostic::error(
                     "back::arc-start",
                     "an arc starts from a position that is not known",
@@ -448,7 +469,6 @@ impl<W: Write> Emitter<W> {
                 .at_span(block.span)
                 .with_help("move to an absolute position before the arc"));
             };
-            let d = self.fmt.decimals.linear;
             // I/J/K, printed in the order I, J, K.
             let mut offs = [
                 (letters.0, arc.center[u.index()] - su),
@@ -508,6 +528,11 @@ impl<W: Write> Emitter<W> {
     }
 
     fn offset(&mut self, block: &Block, change: &OffsetChange) -> Result<(), Diagnostic> {
+        // The declared values are millimetres.
+        if !change.declared.known.is_empty() && self.modes.metric != Some(true) {
+            self.text("G21");
+            self.modes.metric = Some(true);
+        }
         self.text(change.code.gcode());
         for a in change.declared.known.iter() {
             let v = change.declared.values[a.index()];
@@ -554,34 +579,42 @@ impl<W: Write> Emitter<W> {
         cmd: &crate::ir::Command,
         diags: &mut Vec<Diagnostic>,
     ) -> Result<(), Diagnostic> {
-        if let Flavor::Rrf { unsupported, .. } = self.flavor
-            && let Some(code) = rrf::unsupported_code(&cmd.text)
-        {
-            let msg = format!("`{code}` is not supported by RepRapFirmware");
-            match unsupported {
-                rrf::Unsupported::Error => {
-                    return Err(Diagnostic::error("rrf::unsupported", msg)
-                        .at_span(block.span)
-                        .with_help("remove it, or set the rrf option `unsupported` to \"comment\" or \"keep\""));
-                }
-                rrf::Unsupported::Comment => {
-                    diags.push(
-                        Diagnostic::warning("rrf::unsupported", msg)
+        let mut text = cmd.text.as_str();
+        let mut comments = std::borrow::Cow::Borrowed(&block.comments[..]);
+        let kept;
+        if let Flavor::Rrf { unsupported, .. } = self.flavor {
+            let (k, removed) = rrf::split_unsupported(&cmd.text);
+            if !removed.is_empty() {
+                let msg = format!("`{removed}` is not supported by RepRapFirmware");
+                match unsupported {
+                    rrf::Unsupported::Error => {
+                        return Err(Diagnostic::error("rrf::unsupported", msg)
                             .at_span(block.span)
-                            .with_help("it is written as a comment; set the rrf option `unsupported = \"keep\"` if your macros implement it"),
-                    );
-                    let mut comments = vec![Comment {
-                        text: format!(" {} (not supported by RepRapFirmware)", cmd.text),
-                        style: CommentStyle::Semicolon,
-                    }];
-                    comments.extend(block.comments.iter().cloned());
-                    self.end_line(&comments, false)?;
-                    return Ok(());
+                            .with_help("remove it, or set the rrf option `unsupported` to \"comment\" or \"keep\""));
+                    }
+                    rrf::Unsupported::Comment => {
+                        diags.push(
+                            Diagnostic::warning("rrf::unsupported", msg)
+                                .at_span(block.span)
+                                .with_help("it is written as a comment; set the rrf option `unsupported = \"keep\"` if your macros implement it"),
+                        );
+                        let mut c = vec![Comment {
+                            text: format!(" {removed} (not supported by RepRapFirmware)"),
+                            style: CommentStyle::Semicolon,
+                        }];
+                        c.extend(block.comments.iter().cloned());
+                        comments = std::borrow::Cow::Owned(c);
+                        kept = k;
+                        text = &kept;
+                        if text.is_empty() {
+                            return self.end_line(&comments, false);
+                        }
+                    }
+                    rrf::Unsupported::Keep => {}
                 }
-                rrf::Unsupported::Keep => {}
             }
         }
-        if has_axis_word(&cmd.text) {
+        if has_axis_word(text) {
             let metric = !cmd.modes.inch;
             if self.modes.metric != Some(metric) {
                 self.text(if metric { "G21" } else { "G20" });
@@ -593,9 +626,13 @@ impl<W: Write> Emitter<W> {
                 self.modes.absolute = Some(absolute);
             }
         }
-        self.text(&cmd.text);
-        self.end_line(&block.comments, true)?;
+        self.text(text);
+        self.end_line(&comments, true)?;
         self.forget(cmd.clobbers);
+        // A command's F (probing, homing) changes the modal feed.
+        if cmd.text.split_whitespace().any(|w| w.starts_with(['F', 'f'])) {
+            self.modes.feed = None;
+        }
         Ok(())
     }
 
@@ -652,7 +689,7 @@ impl<W: Write> Emitter<W> {
                 self.text("G4");
                 let letter = self.fmt.dwell_letter;
                 if self.fmt.dwell_milliseconds {
-                    self.word(letter, seconds * 1000.0, 0, block)?;
+                    self.word(letter, seconds * 1000.0, 3, block)?;
                 } else {
                     self.word(letter, *seconds, 3, block)?;
                 }
@@ -670,9 +707,14 @@ impl<W: Write> Emitter<W> {
     }
 }
 
+/// Whether a command has an axis word with a number (`G28 X0`), whose meaning depends on
+/// the units and distance mode.
 fn has_axis_word(text: &str) -> bool {
-    text.split_whitespace()
-        .any(|w| w.chars().next().and_then(Axis::from_letter).is_some() && w.len() > 1)
+    text.split_whitespace().any(|w| {
+        let mut chars = w.chars();
+        chars.next().and_then(Axis::from_letter).is_some()
+            && crate::front::gcode::parse_decimal(chars.as_str()).is_some()
+    })
 }
 
 fn balanced(text: &str) -> bool {

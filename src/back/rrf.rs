@@ -125,18 +125,47 @@ pub fn write_string(blocks: &[Block], options: &Options) -> Result<String, Vec<D
     Ok(String::from_utf8_lossy(&out).into_owned())
 }
 
-/// The first code in a command's text that RepRapFirmware does not implement.
-pub(crate) fn unsupported_code(text: &str) -> Option<&str> {
-    text.split_whitespace().find(|w| {
-        let mut chars = w.chars();
-        let letter = chars.next().map(|c| c.to_ascii_uppercase());
-        let Ok(n) = chars.as_str().parse::<f64>() else {
-            return false;
-        };
-        match letter {
-            Some('G') => matches!(n as u32, 40..=43 | 49 | 80..=89) && n.fract() == 0.0,
-            Some('M') => matches!(n as u32, 6..=9) && n.fract() == 0.0,
-            _ => false,
+/// Whether a word is a G or M code RepRapFirmware lacks (or, for G31, gives another
+/// meaning: it sets the Z probe instead of probing).
+fn unsupported(word: &str) -> bool {
+    let mut chars = word.chars();
+    let letter = chars.next().map(|c| c.to_ascii_uppercase());
+    let Some(n) = crate::front::gcode::parse_decimal(chars.as_str()) else {
+        return false;
+    };
+    if n.fract() != 0.0 {
+        return false;
+    }
+    match letter {
+        Some('G') => matches!(n as u32, 31 | 40..=43 | 49 | 80..=89),
+        Some('M') => matches!(n as u32, 6..=9),
+        _ => false,
+    }
+}
+
+/// Splits a command into the words RepRapFirmware runs and the unsupported codes with
+/// their parameters (the words after them up to the next G, M or T word).
+///
+/// ```
+/// # use ncpost::back::rrf::split_unsupported;
+/// assert_eq!(split_unsupported("T1 M06"), ("T1".to_string(), "M06".to_string()));
+/// assert_eq!(split_unsupported("G43 H1"), (String::new(), "G43 H1".to_string()));
+/// assert_eq!(split_unsupported("M3 S1000"), ("M3 S1000".to_string(), String::new()));
+/// ```
+pub fn split_unsupported(text: &str) -> (String, String) {
+    let mut kept = Vec::new();
+    let mut removed = Vec::new();
+    let mut dropping = false;
+    for w in text.split_whitespace() {
+        let starts_command = w.starts_with(['G', 'g', 'M', 'm', 'T', 't']);
+        if starts_command {
+            dropping = unsupported(w);
         }
-    })
+        if dropping {
+            removed.push(w);
+        } else {
+            kept.push(w);
+        }
+    }
+    (kept.join(" "), removed.join(" "))
 }

@@ -115,16 +115,14 @@ fn clobbers(g: &[Code], m: &[Code], named: AxisSet) -> AxisSet {
         match code {
             // Homing and parking: the named axes, or all.
             (28 | 30 | 161 | 162 | 6 | 29, 0) => {
-                set = set.union(if named.is_empty() {
-                    AxisSet::ALL
-                } else {
-                    named
-                })
+                let mut all = AxisSet::ALL;
+                all.remove(Axis::E);
+                set = set.union(if named.is_empty() { all } else { named })
             }
             // Probing stops somewhere along the named axes.
             (31, 0) | (38, _) => set = set.union(named),
             // Modal settings that do not move.
-            (17..=21 | 40..=43 | 49 | 54..=59 | 61 | 64 | 80 | 90 | 91 | 93..=99, _)
+            (4 | 17..=21 | 40..=43 | 49 | 54..=59 | 61 | 64 | 80 | 90 | 91 | 93..=99, _)
             | (10 | 28 | 30, 1) => {}
             // Probing, macros, coordinate rotation and anything unknown may move or
             // re-define coordinates.
@@ -155,8 +153,6 @@ pub(super) struct Lowerer {
     /// G92 offsets: program = IR + offset.
     offsets: [f64; AXIS_COUNT],
     suspended: Option<[f64; AXIS_COUNT]>,
-    /// Axes already warned about as assumed to be 0.
-    assumed: AxisSet,
     /// Open o-word blocks: (label, keyword).
     oword_stack: Vec<(String, String)>,
     /// Indentation of an open RepRapFirmware meta block.
@@ -183,10 +179,14 @@ impl Lowerer {
             arc_center_absolute: false,
             feed_mode: FeedMode::PerMinute,
             feed: None,
-            pos: Joints::default(),
+            // The extruder's logical position starts at 0 (firmware convention).
+            pos: {
+                let mut p = Joints::default();
+                p.set(Axis::E, 0.0);
+                p
+            },
             offsets: [0.0; AXIS_COUNT],
             suspended: None,
-            assumed: AxisSet::EMPTY,
             oword_stack: Vec::new(),
             meta_indent: None,
             in_subprogram: false,
@@ -255,6 +255,8 @@ impl Lowerer {
         out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
+        // A byte-order mark at the start of the file is not part of the program.
+        let text = if span.line == 1 { text.strip_prefix('\u{feff}').unwrap_or(text) } else { text };
         let trimmed = text.trim();
         if trimmed.is_empty() {
             return;
@@ -336,7 +338,7 @@ impl Lowerer {
                     span,
                     VerbatimReason::ControlFlow,
                     AxisSet::ALL,
-                    Placement::TopLevel { keeps_modes: false },
+                    Placement::Inside,
                 ));
                 return;
             }
@@ -402,14 +404,16 @@ impl Lowerer {
                     self.program_started = true;
                     let clob = self.command_clobbers(&toks);
                     self.pos.forget(clob);
-                    out.push(Block::new(
+                    let mut block = Block::new(
                         span,
                         BlockKind::Command(Command {
-                            text: text.trim().to_string(),
+                            text: strip_line_number_and_comments(text),
                             modes: WrittenModes::default(),
                             clobbers: clob,
                         }),
-                    ));
+                    );
+                    block.comments = comments_of(text, &toks);
+                    out.push(block);
                 }
                 Unplain::Unevaluated => {
                     let keeps_modes = !self.apply_plain_modes(&toks);
@@ -454,11 +458,8 @@ impl Lowerer {
         let label = oword_label(text, toks);
         let kw = keyword.to_ascii_lowercase();
         let top_level = self.oword_stack.is_empty();
-        let placement = if top_level {
-            Placement::TopLevel { keeps_modes: false }
-        } else {
-            Placement::Inside
-        };
+        // Nothing may be inserted between the lines of a control-flow construct.
+        let placement = Placement::Inside;
         match kw.as_str() {
             "sub" | "if" | "repeat" | "do" => self.oword_stack.push((label, kw.clone())),
             "while" => {
@@ -514,7 +515,9 @@ impl Lowerer {
         diags: &mut Vec<Diagnostic>,
     ) -> Option<Unplain> {
         // A checksum ends the line; anything but a comment after it is an error.
-        if let Some(i) = toks.iter().position(|t| matches!(t.1, Tok::Checksum(_)))
+        let has_expression = toks.iter().any(|t| matches!(t.1, Tok::Other(c) if "#[]{}=<>@^".contains(c)));
+        if !has_expression
+            && let Some(i) = toks.iter().position(|t| matches!(t.1, Tok::Checksum(_)))
             && let Some(&(s, _, e)) = toks[i + 1..]
                 .iter()
                 .find(|t| !matches!(t.1, Tok::LineComment(_) | Tok::Comment(_)))
@@ -1005,8 +1008,6 @@ impl Lowerer {
             .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
             .map(|(_, w)| *w)
             .collect();
-        self.program_started = true;
-
         // F applies to this block and after; in G93 it is per block.
         let mut feed_written = false;
         if let Some(f) = params[(b'F' - b'A') as usize]
@@ -1045,7 +1046,9 @@ impl Lowerer {
                 .chain(rest.iter())
                 .copied()
                 .collect();
-            let becomes_motion = !axis_user && offset_code.is_none() && !named.is_empty();
+            let arc_here = matches!(motion_here, Some(MotionMode::Arc { .. }))
+                && ['I', 'J', 'K', 'R'].iter().any(|l| params[(*l as u8 - b'A') as usize].is_some());
+            let becomes_motion = !axis_user && offset_code.is_none() && (!named.is_empty() || arc_here);
             if !dwell && !becomes_motion {
                 // The command's own parameters stay with it (`G54.1 P2`, `M98 P1 L2`).
                 for l in ['I', 'J', 'K', 'R', 'P'] {
@@ -1152,15 +1155,28 @@ impl Lowerer {
         } else if axis_user {
             let mut words = command_words.clone();
             words.extend(named.iter().filter_map(|a| axes[a.index()]));
+            // A probe's or homing command's feed is its own (and stays modal).
+            words.extend(params[(b'F' - b'A') as usize]);
             words.sort_by_key(|w| w.start);
-            blocks.push(self.command(span, &words, &g_list, &m_list, named, true));
+            let mut cmd = self.command(span, &words, &g_list, &m_list, named, true);
+            if !bare.is_empty()
+                && let BlockKind::Command(c) = &mut cmd.kind
+            {
+                // `G28 X Z`, `G6 B20 R`: bare letters are arguments; keep the words as written.
+                c.text = strip_line_number_and_comments(text);
+            }
+            blocks.push(cmd);
             for a in bare
                 .iter()
                 .filter_map(|(_, l)| Axis::from_letter(l.chars().next().unwrap_or(' ')))
             {
                 self.pos.forget(std::iter::once(a).collect());
             }
-        } else if !named.is_empty() || (motion_here.is_some() && !bare.is_empty()) {
+        } else if !named.is_empty()
+            || (motion_here.is_some() && !bare.is_empty())
+            || (matches!(motion_here, Some(MotionMode::Arc { .. }))
+                && ['I', 'J', 'K', 'R'].iter().any(|l| params[(*l as u8 - b'A') as usize].is_some()))
+        {
             if let Some(&(s, l)) = bare.first() {
                 diags.push(letter_error(line_no, text, s, l));
                 return;
@@ -1254,8 +1270,13 @@ impl Lowerer {
                 return;
             }
             out.push(Block::new(span, BlockKind::Comment));
+        } else {
+            self.program_started = true;
         }
-        out[first].comments = comments;
+        // A line passed through as text keeps its comments in the text.
+        if !matches!(out[first].kind, BlockKind::Verbatim(_)) {
+            out[first].comments = comments;
+        }
     }
 
     fn unit(&self, axis: Axis) -> f64 {
@@ -1300,31 +1321,6 @@ impl Lowerer {
         )
     }
 
-    /// Resolves the start position of `axis`, assuming 0 (with a warning) if unknown.
-    fn start(&mut self, axis: Axis, line_no: u32, text: &str, diags: &mut Vec<Diagnostic>) -> f64 {
-        match self.pos.get(axis) {
-            Some(v) => v,
-            None => {
-                if !self.assumed.contains(axis) {
-                    self.assumed.insert(axis);
-                    diags.push(
-                        Diagnostic::warning(
-                            "gcode::unknown-position",
-                            format!("the position of {} is not known here; it is taken as 0", axis.letter()),
-                        )
-                        .at_bytes(line_no, text, 0, text.len())
-                        .with_help(format!(
-                            "a relative move or an arc needs its start; move {} to an absolute position first",
-                            axis.letter()
-                        )),
-                    );
-                }
-                self.pos.set(axis, 0.0);
-                0.0
-            }
-        }
-    }
-
     #[allow(clippy::too_many_arguments)]
     fn motion_block(
         &mut self,
@@ -1342,6 +1338,32 @@ impl Lowerer {
         let line_no = span.line;
         let param = |l: char| params[(l as u8 - b'A') as usize];
         let start = self.pos;
+        // A relative move from an unknown position cannot be made absolute: it travels as
+        // written, in the modes it was written in, and its axes stay unknown.
+        let relative = |a: Axis| if a == Axis::E { self.relative || self.relative_e } else { self.relative };
+        if !machine_frame
+            && let Some(a) = named.iter().find(|&a| relative(a) && start.get(a).is_none())
+        {
+            diags.push(
+                Diagnostic::warning(
+                    "gcode::relative-unknown",
+                    format!("relative move of {} from a position that is not known here", a.letter()),
+                )
+                .at_bytes(line_no, text, 0, text.len())
+                .with_label("passes through unchanged")
+                .with_help(format!(
+                    "it is copied as written (in G91); move {} to an absolute position first to have it resolved",
+                    a.letter()
+                )),
+            );
+            return Some(self.verbatim(
+                text,
+                span,
+                VerbatimReason::Unevaluated,
+                named,
+                Placement::TopLevel { keeps_modes: true },
+            ));
+        }
         let mut target = self.pos;
         for a in named.iter() {
             let Some(w) = axes[a.index()] else { continue };
@@ -1354,7 +1376,7 @@ impl Lowerer {
             let value = if machine_frame {
                 v
             } else if rel {
-                self.start(a, line_no, text, diags) + v
+                start.values[a.index()] + v
             } else {
                 v - self.offsets[a.index()]
             };
@@ -1642,7 +1664,7 @@ fn plane_offset_letters(plane: Plane) -> (char, char, char) {
 /// Parses a G-code decimal (`-1.25`, `.5`, `3.`): exactly as `str::parse::<f64>`, with a
 /// fast path for up to 15 digits, where the digits form an exact integer and dividing by
 /// an exact power of ten rounds once, correctly (Clinger's fast path).
-pub(super) fn parse_decimal(s: &str) -> Option<f64> {
+pub fn parse_decimal(s: &str) -> Option<f64> {
     const POW10: [f64; 16] = [
         1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
     ];
@@ -1769,6 +1791,27 @@ fn oword_label(text: &str, toks: &[Spanned<'_>]) -> String {
         .find(|t| matches!(t.1, Tok::Ident(_)))
         .map_or(text.len(), |t| t.0);
     text[toks[0].0 + 1..end].trim().to_ascii_lowercase()
+}
+
+/// The comments of a line passed through as a command, without their delimiters.
+fn comments_of(text: &str, toks: &[Spanned<'_>]) -> Vec<Comment> {
+    toks.iter()
+        .filter_map(|&(s, t, e)| match t {
+            Tok::Comment(_) => Some(Comment {
+                text: text[s + 1..e - 1].to_string(),
+                style: CommentStyle::Paren,
+            }),
+            Tok::OpenComment(_) => Some(Comment {
+                text: text[s + 1..e].to_string(),
+                style: CommentStyle::Paren,
+            }),
+            Tok::LineComment(_) => Some(Comment {
+                text: text[s + 1..e].to_string(),
+                style: CommentStyle::Semicolon,
+            }),
+            _ => None,
+        })
+        .collect()
 }
 
 fn strip_line_number_and_comments(text: &str) -> String {

@@ -6,6 +6,7 @@
 //! positions they may change become unknown.
 
 pub mod ast;
+pub use lower::parse_decimal;
 pub mod lexer;
 mod lower;
 
