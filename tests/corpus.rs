@@ -168,37 +168,25 @@ macro_rules! snapshot_fixture {
 #[test]
 fn linuxcnc_tort() {
     // origin: LinuxCNC/linuxcnc nc_files/tort.ngc @ 5c41560e (GPL-2.0)
-    snapshot_fixture!(
-        "linuxcnc_tort.ngc",
-        known_bug = "the full circle on line 159 `G17 G2 F270 (59 59) I-1.500000 J-2.598076 X0.000000 Y1.500000 Z21.500000` (end = start, no axis changes) is printed as `G2 I-1.5 J-2.598 F270 (59 59)` with no axis word: LinuxCNC rejects it, and ncpost reads it back as the command `I-1.5 J-2.598` (G2 dropped) and loses the next arc's start. Arc offsets are computed from the unrounded start, so the centres read back are up to 0.001 mm off (more than the print precision)."
-    );
+    snapshot_fixture!("linuxcnc_tort.ngc");
 }
 
 #[test]
 fn millenniumos_rrf_cnc_example() {
     // origin: MillenniumMachines/MillenniumOS example.gcode @ de639ec8 (GPL-3.0)
-    snapshot_fixture!(
-        "millenniumos_rrf_cnc_example.gcode",
-        known_bug = "`M4005 V\"v0.3.0\"` is printed as `G21 G90 M4005 V\"v0.3.0\"`: the quoted V parameter is taken for an axis word; ncpost reads that output line back as an unevaluated line."
-    );
+    snapshot_fixture!("millenniumos_rrf_cnc_example.gcode");
 }
 
 #[test]
 fn millenniumos_g6508_1_meta_macro() {
     // origin: MillenniumMachines/MillenniumOS macro/movement/G6508.1.g @ de639ec8 (GPL-3.0)
-    snapshot_fixture!(
-        "millenniumos_G6508.1.g",
-        known_bug = "a `G21 G90` line is printed before every top-level meta line, including between an `if` block and its `else` (`G21 G90` then `else`), which breaks the macro on RepRapFirmware."
-    );
+    snapshot_fixture!("millenniumos_G6508.1.g");
 }
 
 #[test]
 fn gcoders_mach3_plasma() {
     // origin: Michael-F-Bryan/gcode-rs tests/data/_mach3_plasma.gcode @ d6edb2a6 (MIT OR Apache-2.0)
-    snapshot_fixture!(
-        "gcoders_mach3_plasma.gcode",
-        known_bug = "`G31 Z-11.8 F55` is printed without its F (the probe runs at no programmed feed); `G04 P0.2` (0.2 s on Mach3) is read as 0.2 ms and printed `G4 P0` (rrf: `G4 S0`)."
-    );
+    snapshot_fixture!("gcoders_mach3_plasma.gcode");
 }
 
 #[test]
@@ -210,10 +198,7 @@ fn gcoders_helman_program_2_g41() {
 #[test]
 fn igesio_codes() {
     // origin: YayoiHabami/IGESio tests/test_data/machines/nc/codes.nc @ 3e87a91a (MIT)
-    snapshot_fixture!(
-        "igesio_codes.nc",
-        known_bug = "the origin comment line before `O0001` marks the program as started, so the frontend takes the main program O0001 for a subprogram and passes every line through verbatim (no lowering, no RRF translation). Without a comment-only line first, `O0001` is a delimiter and the body is lowered. Any comment-only line must not start the program."
-    );
+    snapshot_fixture!("igesio_codes.nc");
 }
 
 #[test]
@@ -231,56 +216,37 @@ fn lhalb_sinumerik_pathcode() {
 #[test]
 fn gcoders_gcode_lexer_samples() {
     // origin: Michael-F-Bryan/gcode-rs tests/data/_gcodeLexer_samples.ngc @ d6edb2a6 (MIT OR Apache-2.0)
-    snapshot_fixture!(
-        "gcoders_gcodeLexer_samples.ngc",
-        known_bug = "`G28 X Z` is printed as `G28` (bare axis letters dropped, so it homes every axis) and `G6 B20 R` loses its `R`; the full circles `G2 X90.6 Y13.8 I5 J10 E22.4` / `G3 ...` are printed as `G2 I127 J254` / `G3 I127 J254` with no axis word; `M563 P0 D0:2:3 H1:3 ; create ... extruder ...` keeps its comment inside the command text and gets a spurious `G21` in front because a word of the comment starts with E."
-    );
+    snapshot_fixture!("gcoders_gcodeLexer_samples.ngc");
 }
 
 #[test]
 fn sameer_edge_cases() {
     // origin: sameer/g-code lib/tests/edge_cases.gcode @ 81035b12 (MIT OR Apache-2.0)
-    snapshot_fixture!(
-        "sameer_edge_cases.gcode",
-        known_bug =
-            "`G28 X Y Z` is printed as `G28`: the bare axis letters of the command are dropped."
-    );
+    snapshot_fixture!("sameer_edge_cases.gcode");
 }
 
 #[test]
 fn gcoders_reprap_25000_cnc() {
     // origin: Michael-F-Bryan/gcode-rs tests/data/reprap_cnc.gcode @ d6edb2a6 (MIT OR Apache-2.0)
-    snapshot_fixture!(
-        "gcoders_reprap_25000_cnc.gcode",
-        known_bug = "`G92 X-141.6 Y-44.6 Z0` is printed before `G21 G90`: G92 values are printed in mm without putting the controller into G21 first."
-    );
+    snapshot_fixture!("gcoders_reprap_25000_cnc.gcode");
 }
 
 #[test]
 fn printrun_pause_restore_rel_e() {
     // origin: kliment/Printrun testfiles/pause-restore-rel-e.gcode @ ecd260f1 (GPL-3.0)
-    snapshot_fixture!(
-        "printrun_pause_restore_rel_e.gcode",
-        known_bug = "the `G90` and `M83` lines are dropped because no move follows them: the output no longer switches to relative extrusion, which is the point of this file."
-    );
+    snapshot_fixture!("printrun_pause_restore_rel_e.gcode");
 }
 
 #[test]
 fn printrun_pcb_milling_comment() {
     // origin: kliment/Printrun testfiles/PCB-milling-and-(comment).gcode @ ecd260f1 (GPL-3.0)
-    snapshot_fixture!(
-        "printrun_pcb_milling_comment.gcode",
-        known_bug = "the bare `G4` lines become commands that clobber every axis, so the IR forgets X/Y/Z after a dwell that does not move (the printed G-code is still right here)."
-    );
+    snapshot_fixture!("printrun_pcb_milling_comment.gcode");
 }
 
 #[test]
 fn mech491_zig_zag_smoothed() {
     // origin: userFour/MECH491-postprocessor PostProcessed_Zig_Zag_Smoothed.txt @ 22c4fbbd (CC0-1.0)
-    snapshot_fixture!(
-        "mech491_PostProcessed_Zig_Zag_Smoothed.nc",
-        known_bug = "the origin comment line before `O2021-11-28_test2setup_1` marks the program as started, so the whole Haas program is taken for a subprogram and passes through verbatim (no inch conversion). The UTF-8 BOM of the original first line is not skipped either (that line is unevaluated text anyway)."
-    );
+    snapshot_fixture!("mech491_PostProcessed_Zig_Zag_Smoothed.nc");
 }
 
 #[test]
@@ -304,10 +270,7 @@ fn sameer_vandy_logo_svg2gcode() {
 #[test]
 fn gcoders_program_3_tweakie() {
     // origin: Michael-F-Bryan/gcode-rs tests/data/_program_3.gcode @ d6edb2a6 (MIT OR Apache-2.0)
-    snapshot_fixture!(
-        "gcoders_program_3_tweakie.gcode",
-        known_bug = "rrf: `T1M06` becomes the comment `; T1 M06 (not supported by RepRapFirmware)`, so the supported tool selection T1 is lost with the unsupported M06."
-    );
+    snapshot_fixture!("gcoders_program_3_tweakie.gcode");
 }
 
 /// Every fixture file has a test above (and so a snapshot), and every fixture starts with

@@ -365,8 +365,8 @@ fn checksum_mismatch() {
 #[test]
 fn checksum_mid_line() {
     let diags = check_text("checksum_mid_line.gcode", "checksum_mid_line");
-    // The parser rejects the word after the checksum, `Y2`.
-    expect(only(&diags), Severity::Error, "gcode::syntax", 3, 12);
+    // The checksum is marked: it must end the line.
+    expect(only(&diags), Severity::Error, "gcode::checksum-position", 3, 9);
 }
 
 #[test]
@@ -474,9 +474,11 @@ fn binary_png_header() {
     assert!(diags.iter().any(Diagnostic::is_error));
     let errors: Vec<&Diagnostic> = diags.iter().filter(|d| d.is_error()).collect();
     expect(errors[0], Severity::Error, "gcode::not-utf8", 2, 1);
+    // Line 3 is the PNG header's 0x1a (SUB): a control character.
+    expect(errors[1], Severity::Error, "gcode::control-character", 3, 1);
     // NUL NUL NUL CR I H D R, NUL NUL NUL 0x10, NUL NUL NUL 0x10, 0x08 0x06, NUL NUL NUL,
     // 0x1f: the bad byte 0xf3 is the 23rd.
-    expect(errors[1], Severity::Error, "gcode::not-utf8", 4, 23);
+    expect(errors[2], Severity::Error, "gcode::not-utf8", 4, 23);
     for d in &diags {
         assert!(d.location.is_some(), "no location: {d}");
     }

@@ -373,6 +373,10 @@ impl<W: Write> Emitter<W> {
         let mut any = false;
         for a in Axis::ALL {
             let Some(v) = target.get(a) else { continue };
+            // A machine-frame (G53) move names only its own axes.
+            if motion.machine_frame && !motion.written.contains(a) {
+                continue;
+            }
             let d = self.fmt.decimals.axis(a);
             if a == Axis::E && self.fmt.extrusion == Extrusion::Relative && !motion.machine_frame {
                 let u = to_units(v, d).ok_or_else(|| too_large('E', v, block))?;
@@ -614,7 +618,7 @@ impl<W: Write> Emitter<W> {
                 }
             }
         }
-        if has_axis_word(text) {
+        if has_axis_word(text) && text.starts_with(['G', 'g']) {
             let metric = !cmd.modes.inch;
             if self.modes.metric != Some(metric) {
                 self.text(if metric { "G21" } else { "G20" });
@@ -629,6 +633,16 @@ impl<W: Write> Emitter<W> {
         self.text(text);
         self.end_line(&comments, true)?;
         self.forget(cmd.clobbers);
+        // M82/M83 pass through; the next E move puts back the output's own mode.
+        for w in text.split_whitespace() {
+            if let Some(n) = w.strip_prefix(['M', 'm']).and_then(crate::front::gcode::parse_decimal) {
+                if n == 82.0 {
+                    self.modes.e_relative = Some(false);
+                } else if n == 83.0 {
+                    self.modes.e_relative = Some(true);
+                }
+            }
+        }
         // A command's F (probing, homing) changes the modal feed.
         if cmd.text.split_whitespace().any(|w| w.starts_with(['F', 'f'])) {
             self.modes.feed = None;
@@ -650,9 +664,13 @@ impl<W: Write> Emitter<W> {
             if self.modes.absolute != Some(!m.relative) {
                 self.text(if m.relative { "G91" } else { "G90" });
             }
-            // E modes only where this output has used them (LinuxCNC lacks M82/M83).
-            if self.modes.e_relative.is_some_and(|r| r != m.relative_e) {
+            // E modes only where this output has used them or the line moves E (LinuxCNC
+            // lacks M82/M83).
+            if self.modes.e_relative != Some(m.relative_e)
+                && (self.modes.e_relative.is_some() || moves_e(&v.text))
+            {
                 self.text(if m.relative_e { "M83" } else { "M82" });
+                self.modes.e_relative = Some(m.relative_e);
             }
             if !self.line.is_empty() {
                 self.end_line(&[], true)?;
@@ -705,6 +723,13 @@ impl<W: Write> Emitter<W> {
     pub(crate) fn flush(&mut self) -> Result<(), Diagnostic> {
         self.out.flush().map_err(io_error)
     }
+}
+
+/// Whether a line has an E word with a number.
+fn moves_e(text: &str) -> bool {
+    let mut toks = Vec::new();
+    crate::front::gcode::lexer::lex_line(text, &mut toks);
+    toks.iter().any(|t| matches!(t.1, crate::front::gcode::lexer::Tok::Word(w) if w.starts_with(['E', 'e'])))
 }
 
 /// Whether a command has an axis word with a number (`G28 X0`), whose meaning depends on

@@ -1,7 +1,7 @@
 //! RepRapFirmware 3.x backend (Duet 3, CNC mode).
 //!
 //! Differences from plain G-code: `;` comments by default (CNC mode accepts one `( )`
-//! pair per line), `G4 S` dwells in seconds, G93 only when the firmware is 3.5 or newer,
+//! pair per line), `G4 P` dwells in milliseconds, G93 only when the firmware is 3.5 or newer,
 //! and codes RepRapFirmware lacks (G40-G43, G49, G80-G89, M6-M9 without macros) are
 //! written as comments with a warning unless configured otherwise.
 
@@ -94,8 +94,9 @@ impl<W: Write> Writer<W> {
             checksums: options.checksums,
             modal_motion: options.modal_motion,
             extrusion: options.extrusion,
-            dwell_milliseconds: false,
-            dwell_letter: 'S',
+            // `G4 P` in milliseconds keeps the number of the (Fanuc/Marlin/RRF) source.
+            dwell_milliseconds: true,
+            dwell_letter: 'P',
         };
         let flavor = Flavor::Rrf {
             inverse_time: options.inverse_time,

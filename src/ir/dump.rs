@@ -28,7 +28,7 @@ pub fn write_block(out: &mut String, block: &Block) {
                 MotionKind::Arc(_) => "arc-ccw",
             });
             match &m.target {
-                Target::Joints(j) => joints(out, j),
+                Target::Joints(j) => joints(out, &quiet_e(j, m.written)),
                 Target::Pose(p) => {
                     let _ = write!(
                         out,
@@ -132,6 +132,15 @@ pub fn write_block(out: &mut String, block: &Block) {
             }
         }
     }
+}
+
+/// The extruder starts known at 0; on machines that never use it, leave it out.
+fn quiet_e(j: &Joints, written: AxisSet) -> Joints {
+    let mut j = *j;
+    if j.get(Axis::E) == Some(0.0) && !written.contains(Axis::E) {
+        j.forget(std::iter::once(Axis::E).collect());
+    }
+    j
 }
 
 fn joints(out: &mut String, j: &Joints) {

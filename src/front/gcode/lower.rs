@@ -122,7 +122,7 @@ fn clobbers(g: &[Code], m: &[Code], named: AxisSet) -> AxisSet {
             // Probing stops somewhere along the named axes.
             (31, 0) | (38, _) => set = set.union(named),
             // Modal settings that do not move.
-            (4 | 17..=21 | 40..=43 | 49 | 54..=59 | 61 | 64 | 80 | 90 | 91 | 93..=99, _)
+            (0..=4 | 17..=21 | 40..=43 | 49 | 53 | 54..=59 | 61 | 64 | 80 | 90 | 91 | 93..=99, _)
             | (10 | 28 | 30, 1) => {}
             // Probing, macros, coordinate rotation and anything unknown may move or
             // re-define coordinates.
@@ -1005,7 +1005,6 @@ impl Lowerer {
         let m_list: Small<Code> = m_codes.iter().map(|(c, _)| *c).collect();
         let passthrough_m: Small<Word<'_>> = m_codes
             .iter()
-            .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
             .map(|(_, w)| *w)
             .collect();
         // F applies to this block and after; in G93 it is per block.
@@ -1158,7 +1157,15 @@ impl Lowerer {
             // A probe's or homing command's feed is its own (and stays modal).
             words.extend(params[(b'F' - b'A') as usize]);
             words.sort_by_key(|w| w.start);
-            let mut cmd = self.command(span, &words, &g_list, &m_list, named, true);
+            // Bare letters name axes too (`G28 X Z` homes X and Z).
+            let bare_axes: AxisSet = bare
+                .iter()
+                .filter_map(|(_, l)| l.chars().next().and_then(Axis::from_letter))
+                .collect();
+            // Only G codes take coordinates in the current units and distance mode; an M code's
+            // axis words are settings (`M201 X2500`, `M563 X3`).
+            let coordinates = !other_g.is_empty();
+            let mut cmd = self.command(span, &words, &g_list, &m_list, named.union(bare_axes), coordinates);
             if !bare.is_empty()
                 && let BlockKind::Command(c) = &mut cmd.kind
             {
@@ -1166,12 +1173,6 @@ impl Lowerer {
                 c.text = strip_line_number_and_comments(text);
             }
             blocks.push(cmd);
-            for a in bare
-                .iter()
-                .filter_map(|(_, l)| Axis::from_letter(l.chars().next().unwrap_or(' ')))
-            {
-                self.pos.forget(std::iter::once(a).collect());
-            }
         } else if !named.is_empty()
             || (motion_here.is_some() && !bare.is_empty())
             || (matches!(motion_here, Some(MotionMode::Arc { .. }))
@@ -1814,19 +1815,23 @@ fn comments_of(text: &str, toks: &[Spanned<'_>]) -> Vec<Comment> {
         .collect()
 }
 
+/// The words of a line as written, without line number, checksum and comments. Words
+/// that touch in the source still touch (`S"net"` must not become `S "net"`).
 fn strip_line_number_and_comments(text: &str) -> String {
     let mut toks = Vec::new();
     lex_line(text, &mut toks);
     let mut out = String::new();
+    let mut last_end = None;
     for (s, t, e) in toks {
         match t {
             Tok::Comment(_) | Tok::LineComment(_) | Tok::OpenComment(_) | Tok::Checksum(_) => {}
-            Tok::Word(w) if w.starts_with(['N', 'n']) => {}
+            Tok::Word(w) if w.starts_with(['N', 'n']) && last_end.is_none() => {}
             _ => {
-                if !out.is_empty() {
+                if last_end.is_some_and(|end| end < s) {
                     out.push(' ');
                 }
                 out.push_str(&text[s..e]);
+                last_end = Some(e);
             }
         }
     }

@@ -71,6 +71,8 @@ pub struct Parser<R> {
     /// Blocks lowered but not yet handed out by `next_block`, in reverse order.
     pending: Vec<Block>,
     lines: u64,
+    /// Lines rejected before lowering (too long, not UTF-8).
+    bad_lines: u64,
     done: bool,
 }
 
@@ -82,6 +84,7 @@ impl<R: BufRead> Parser<R> {
             lower: lower::Lowerer::new(options),
             pending: Vec::new(),
             lines: 0,
+            bad_lines: 0,
             done: false,
         }
     }
@@ -94,7 +97,8 @@ impl<R: BufRead> Parser<R> {
                     self.lines += 1;
                     match raw {
                         RawLine::Text(text) => self.lower.line(text, span, out, diags),
-                        RawLine::TooLong => diags.push(
+                        RawLine::TooLong => diags.push({
+                            self.bad_lines += 1;
                             Diagnostic::error(
                                 "gcode::line-too-long",
                                 format!(
@@ -106,16 +110,17 @@ impl<R: BufRead> Parser<R> {
                             .with_help(
                                 "this is not G-code a controller accepts; check that the file \
                                  is not binary or missing its line breaks",
-                            ),
-                        ),
+                            )
+                        }),
                         RawLine::NotUtf8 { valid_up_to, lossy } => {
+                            self.bad_lines += 1;
                             diags.push(lower::not_utf8(span, valid_up_to, &lossy))
                         }
                     }
                 }
                 Ok(None) => {
                     self.done = true;
-                    if self.lines == 0 || !self.lower.saw_text() {
+                    if self.lines == 0 || (!self.lower.saw_text() && self.bad_lines == 0) {
                         let what = if self.lines == 0 {
                             "the input is empty"
                         } else {
