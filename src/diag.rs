@@ -62,8 +62,8 @@ pub struct Diagnostic {
     pub code: &'static str,
     /// One-line message.
     pub message: String,
-    /// Place in the source, when there is one.
-    pub location: Option<Location>,
+    /// Place in the source, when there is one (boxed: diagnostics travel in `Result`s).
+    pub location: Option<Box<Location>>,
     /// Text under the marked span.
     pub label: Option<String>,
     /// What to do about it.
@@ -105,13 +105,13 @@ impl Diagnostic {
     pub fn at_line(mut self, line: u32, source_line: &str, column: u32, len: u32) -> Self {
         let column = column.max(1);
         let (text, cut) = snippet(source_line, column as usize);
-        self.location = Some(Location {
+        self.location = Some(Box::new(Location {
             line,
             column,
             len: len.max(1),
             source_line: text,
             cut: cut as u32,
-        });
+        }));
         self
     }
 
@@ -126,13 +126,13 @@ impl Diagnostic {
 
     /// Points at a whole block's line (column 1), without a snippet.
     pub fn at_span(mut self, span: Span) -> Self {
-        self.location = Some(Location {
+        self.location = Some(Box::new(Location {
             line: span.line,
             column: 1,
             len: 1,
             source_line: String::new(),
             cut: 0,
-        });
+        }));
         self
     }
 

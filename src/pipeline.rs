@@ -200,7 +200,13 @@ impl Pipeline {
             let summary = self.run_into(&mut front, BATCH, &mut deliver, on_diag);
             drop(tx);
             let (written, diags) = writer.join().unwrap_or_else(|_| {
-                (0, vec![Diagnostic::error("back::panic", "the backend stopped unexpectedly")])
+                (
+                    0,
+                    vec![Diagnostic::error(
+                        "back::panic",
+                        "the backend stopped unexpectedly",
+                    )],
+                )
             });
             (summary, written, diags)
         });
@@ -285,7 +291,14 @@ impl Pipeline {
         for i in 0..self.passes.len() {
             cur.clear();
             self.passes[i].finish(&mut Output::new(&mut cur, &mut diags));
-            self.flow(i + 1, &mut cur, &mut next, &mut diags, deliver, &mut summary);
+            self.flow(
+                i + 1,
+                &mut cur,
+                &mut next,
+                &mut diags,
+                deliver,
+                &mut summary,
+            );
         }
         if let Some(d) = &mut self.dump {
             let _ = d.flush();

@@ -411,7 +411,10 @@ impl<W: Write> Emitter<W> {
                     && let Some(val) = target.get(a)
                 {
                     let prog = val + self.offsets[a.index()];
-                    words[a.index()] = Some(to_units(prog, self.fmt.decimals.axis(a)).ok_or_else(|| too_large(a.letter(), prog, block))?);
+                    words[a.index()] = Some(
+                        to_units(prog, self.fmt.decimals.axis(a))
+                            .ok_or_else(|| too_large(a.letter(), prog, block))?,
+                    );
                 }
             }
         }
@@ -635,7 +638,10 @@ impl<W: Write> Emitter<W> {
         self.forget(cmd.clobbers);
         // M82/M83 pass through; the next E move puts back the output's own mode.
         for w in text.split_whitespace() {
-            if let Some(n) = w.strip_prefix(['M', 'm']).and_then(crate::front::gcode::parse_decimal) {
+            if let Some(n) = w
+                .strip_prefix(['M', 'm'])
+                .and_then(crate::front::gcode::parse_decimal)
+            {
                 if n == 82.0 {
                     self.modes.e_relative = Some(false);
                 } else if n == 83.0 {
@@ -644,7 +650,11 @@ impl<W: Write> Emitter<W> {
             }
         }
         // A command's F (probing, homing) changes the modal feed.
-        if cmd.text.split_whitespace().any(|w| w.starts_with(['F', 'f'])) {
+        if cmd
+            .text
+            .split_whitespace()
+            .any(|w| w.starts_with(['F', 'f']))
+        {
             self.modes.feed = None;
         }
         Ok(())
@@ -729,7 +739,9 @@ impl<W: Write> Emitter<W> {
 fn moves_e(text: &str) -> bool {
     let mut toks = Vec::new();
     crate::front::gcode::lexer::lex_line(text, &mut toks);
-    toks.iter().any(|t| matches!(t.1, crate::front::gcode::lexer::Tok::Word(w) if w.starts_with(['E', 'e'])))
+    toks.iter().any(
+        |t| matches!(t.1, crate::front::gcode::lexer::Tok::Word(w) if w.starts_with(['E', 'e'])),
+    )
 }
 
 /// Whether a command has an axis word with a number (`G28 X0`), whose meaning depends on

@@ -39,7 +39,7 @@ pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
     let mut u = units.unsigned_abs();
     let mut frac = decimals.min(9) as usize;
     if trim {
-        while frac > 0 && u % 10 == 0 {
+        while frac > 0 && u.is_multiple_of(10) {
             u /= 10;
             frac -= 1;
         }

@@ -122,7 +122,10 @@ fn clobbers(g: &[Code], m: &[Code], named: AxisSet) -> AxisSet {
             // Probing stops somewhere along the named axes.
             (31, 0) | (38, _) => set = set.union(named),
             // Modal settings that do not move.
-            (0..=4 | 17..=21 | 40..=43 | 49 | 53 | 54..=59 | 61 | 64 | 80 | 90 | 91 | 93..=99, _)
+            (
+                0..=4 | 17..=21 | 40..=43 | 49 | 53 | 54..=59 | 61 | 64 | 80 | 90 | 91 | 93..=99,
+                _,
+            )
             | (10 | 28 | 30, 1) => {}
             // Probing, macros, coordinate rotation and anything unknown may move or
             // re-define coordinates.
@@ -256,7 +259,11 @@ impl Lowerer {
         diags: &mut Vec<Diagnostic>,
     ) {
         // A byte-order mark at the start of the file is not part of the program.
-        let text = if span.line == 1 { text.strip_prefix('\u{feff}').unwrap_or(text) } else { text };
+        let text = if span.line == 1 {
+            text.strip_prefix('\u{feff}').unwrap_or(text)
+        } else {
+            text
+        };
         let trimmed = text.trim();
         if trimmed.is_empty() {
             return;
@@ -515,7 +522,9 @@ impl Lowerer {
         diags: &mut Vec<Diagnostic>,
     ) -> Option<Unplain> {
         // A checksum ends the line; anything but a comment after it is an error.
-        let has_expression = toks.iter().any(|t| matches!(t.1, Tok::Other(c) if "#[]{}=<>@^".contains(c)));
+        let has_expression = toks
+            .iter()
+            .any(|t| matches!(t.1, Tok::Other(c) if "#[]{}=<>@^".contains(c)));
         if !has_expression
             && let Some(i) = toks.iter().position(|t| matches!(t.1, Tok::Checksum(_)))
             && let Some(&(s, _, e)) = toks[i + 1..]
@@ -1003,10 +1012,7 @@ impl Lowerer {
             self.motion = m;
         }
         let m_list: Small<Code> = m_codes.iter().map(|(c, _)| *c).collect();
-        let passthrough_m: Small<Word<'_>> = m_codes
-            .iter()
-            .map(|(_, w)| *w)
-            .collect();
+        let passthrough_m: Small<Word<'_>> = m_codes.iter().map(|(_, w)| *w).collect();
         // F applies to this block and after; in G93 it is per block.
         let mut feed_written = false;
         if let Some(f) = params[(b'F' - b'A') as usize]
@@ -1046,8 +1052,11 @@ impl Lowerer {
                 .copied()
                 .collect();
             let arc_here = matches!(motion_here, Some(MotionMode::Arc { .. }))
-                && ['I', 'J', 'K', 'R'].iter().any(|l| params[(*l as u8 - b'A') as usize].is_some());
-            let becomes_motion = !axis_user && offset_code.is_none() && (!named.is_empty() || arc_here);
+                && ['I', 'J', 'K', 'R']
+                    .iter()
+                    .any(|l| params[(*l as u8 - b'A') as usize].is_some());
+            let becomes_motion =
+                !axis_user && offset_code.is_none() && (!named.is_empty() || arc_here);
             if !dwell && !becomes_motion {
                 // The command's own parameters stay with it (`G54.1 P2`, `M98 P1 L2`).
                 for l in ['I', 'J', 'K', 'R', 'P'] {
@@ -1102,14 +1111,7 @@ impl Lowerer {
                 }
             }
             if !command_words.is_empty() {
-                blocks.push(self.command(
-                    span,
-                    &command_words,
-                    &g_list,
-                    &m_list,
-                    named,
-                    false,
-                ));
+                blocks.push(self.command(span, &command_words, &g_list, &m_list, named, false));
             }
             blocks.push(Block::new(
                 span,
@@ -1165,7 +1167,14 @@ impl Lowerer {
             // Only G codes take coordinates in the current units and distance mode; an M code's
             // axis words are settings (`M201 X2500`, `M563 X3`).
             let coordinates = !other_g.is_empty();
-            let mut cmd = self.command(span, &words, &g_list, &m_list, named.union(bare_axes), coordinates);
+            let mut cmd = self.command(
+                span,
+                &words,
+                &g_list,
+                &m_list,
+                named.union(bare_axes),
+                coordinates,
+            );
             if !bare.is_empty()
                 && let BlockKind::Command(c) = &mut cmd.kind
             {
@@ -1176,7 +1185,9 @@ impl Lowerer {
         } else if !named.is_empty()
             || (motion_here.is_some() && !bare.is_empty())
             || (matches!(motion_here, Some(MotionMode::Arc { .. }))
-                && ['I', 'J', 'K', 'R'].iter().any(|l| params[(*l as u8 - b'A') as usize].is_some()))
+                && ['I', 'J', 'K', 'R']
+                    .iter()
+                    .any(|l| params[(*l as u8 - b'A') as usize].is_some()))
         {
             if let Some(&(s, l)) = bare.first() {
                 diags.push(letter_error(line_no, text, s, l));
@@ -1341,9 +1352,17 @@ impl Lowerer {
         let start = self.pos;
         // A relative move from an unknown position cannot be made absolute: it travels as
         // written, in the modes it was written in, and its axes stay unknown.
-        let relative = |a: Axis| if a == Axis::E { self.relative || self.relative_e } else { self.relative };
+        let relative = |a: Axis| {
+            if a == Axis::E {
+                self.relative || self.relative_e
+            } else {
+                self.relative
+            }
+        };
         if !machine_frame
-            && let Some(a) = named.iter().find(|&a| relative(a) && start.get(a).is_none())
+            && let Some(a) = named
+                .iter()
+                .find(|&a| relative(a) && start.get(a).is_none())
         {
             diags.push(
                 Diagnostic::warning(
