@@ -10,7 +10,7 @@
 //! use ncpost::preset::Preset;
 //!
 //! let preset = Preset::builtin("duet-cnc").unwrap();
-//! let gcode = compile_str("G20 G91\nG1 X1 Y1 F10 ; one inch\n", &preset).unwrap();
+//! let gcode = compile_str("G20 G0 X0 Y0\nG91\nG1 X1 Y1 F10 ; one inch\n", &preset).unwrap();
 //! assert!(gcode.contains("G1 X25.4 Y25.4 F254 ; one inch"));
 //! ```
 #![warn(missing_docs)]

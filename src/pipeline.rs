@@ -363,8 +363,8 @@ fn report(diags: &mut Vec<Diagnostic>, on_diag: &mut dyn FnMut(Diagnostic), summ
 ///
 /// ```
 /// let preset = ncpost::preset::Preset::builtin("default").unwrap();
-/// let out = ncpost::pipeline::compile_str("G91\nG0 X1\nG0 X1\n", &preset).unwrap();
-/// assert_eq!(out, "G21 G90\nG0 X1\nG0 X2\n");
+/// let out = ncpost::pipeline::compile_str("G0 X0\nG91\nG0 X1\nG0 X1\n", &preset).unwrap();
+/// assert_eq!(out, "G21 G90\nG0 X0\nG0 X1\nG0 X2\n");
 /// ```
 pub fn compile_str(src: &str, preset: &Preset) -> Result<String, Vec<Diagnostic>> {
     let mut pipeline = Pipeline::builder()

@@ -12,8 +12,9 @@
 //! `$NCPOST_CORPUS`) and over programs generated with proptest, for the plain and the
 //! RepRapFirmware backend with default options and with 6 decimals.
 //!
-//! The `known_*` tests at the end are the minimal inputs of failures this property
-//! found; each is the property itself on one small program.
+//! The `regression_*` and `known_*` tests at the end are the minimal inputs of failures
+//! this property found (fixed and still open); each is the property itself on one small
+//! program.
 
 use std::borrow::Cow;
 use std::fmt::Write as _;
@@ -246,6 +247,7 @@ fn line_of(text: &str, span: Span) -> &str {
 /// comment-only line does, or one comment. Comments are compared as a stream because a
 /// backend may move a line's second comment to a line of its own.
 #[derive(Debug)]
+#[allow(clippy::large_enum_variant)]
 enum Item<'a> {
     Block {
         block: &'a Block,
@@ -1399,7 +1401,10 @@ fn small_programs_roundtrip() {
     }
 }
 
-/// Every case of `known_cases`, one failure per line of the report.
+/// The property on one small program, on every backend; reports each failing backend.
+///
+/// `regression_*` tests are failures the property found that have been fixed;
+/// `known_*` tests are failures still open (each doc comment says what happens).
 fn check_known(src: &str) {
     let mut failures = String::new();
     for b in all_backends() {
@@ -1416,14 +1421,14 @@ fn check_known(src: &str) {
 /// `G4 P` counts milliseconds in the frontend by default, but the plain backend prints
 /// the dwell as `G4 P` in seconds: 1 s comes back as 1 ms.
 #[test]
-fn known_dwell_p_units() {
+fn regression_dwell_p_units() {
     check_known("G4 P1000\n");
 }
 
 /// A full circle (end = start, IJK) is printed without axis words (`G2 I5 J0`), which
 /// the frontend reads as a command `I5 J0` that forgets every position.
 #[test]
-fn known_full_circle() {
+fn regression_full_circle() {
     check_known("G0 X0 Y0\nG2 X0 Y0 I5 J0 F100\n");
 }
 
@@ -1431,7 +1436,7 @@ fn known_full_circle() {
 /// the printed (rounded) start: the centre moves by up to a whole print unit (here
 /// 0.0508 mm becomes 0.05).
 #[test]
-fn known_arc_centre_from_unrounded_start() {
+fn regression_arc_centre_from_unrounded_start() {
     check_known("G20\nG0 X0.001 Y0\nG2 X0.003 Y0 I0.001 J0 F10\n");
 }
 
@@ -1448,14 +1453,14 @@ fn known_relative_e_from_unknown_base() {
 /// command that clobbers every axis; it is printed without the motion code, and the
 /// re-read command clobbers none.
 #[test]
-fn known_motion_code_without_axes_clobbers_all() {
+fn regression_motion_code_without_axes_clobbers_all() {
     check_known("G0 X1 Y1\nG00 S12000\n");
 }
 
 /// `G53 G0 Z0` is printed with every known axis (`G53 G0 X1 Y2 Z0`): the machine moves
 /// X and Y to machine coordinates it was never told to go to.
 #[test]
-fn known_g53_prints_all_known_axes() {
+fn regression_g53_prints_all_known_axes() {
     check_known("G0 X1 Y2 Z3\nG53 G0 Z0\n");
 }
 
@@ -1463,7 +1468,7 @@ fn known_g53_prints_all_known_axes() {
 /// command on the same line, and the re-read line (a G code with a string) is passed
 /// through as unevaluated text.
 #[test]
-fn known_string_parameter_taken_for_axis() {
+fn regression_string_parameter_taken_for_axis() {
     check_known("M4005 V\"x\"\n");
 }
 
@@ -1471,27 +1476,34 @@ fn known_string_parameter_taken_for_axis() {
 /// line starts the main program, so the `O` number after it opens a subprogram that
 /// swallows the rest of the file.
 #[test]
-fn known_mode_line_turns_program_number_into_subprogram() {
+fn regression_mode_line_turns_program_number_into_subprogram() {
     check_known("#1 = 0\nO1000\nG0 X1\n");
 }
 
 /// A pass-through line of an unsupported motion mode keeps its comment twice: in the
 /// text and as a block comment. Every round trip adds one more copy.
 #[test]
-fn known_verbatim_comment_duplicated() {
+fn regression_verbatim_comment_duplicated() {
     check_known("G38.2 Z-1 F100 (probe)\n");
 }
 
 /// A pass-through line written under M83 is printed without M83 (the output has not
 /// used E yet), so it is re-read as written in absolute extrusion.
 #[test]
-fn known_verbatim_relative_e_mode_lost() {
+fn regression_verbatim_relative_e_mode_lost() {
     check_known("M83\n#1 = 0\n");
 }
 
 /// A command with axis words written under M83 keeps `relative_e` in its modes, but
 /// the backend establishes only units and distance mode before it.
 #[test]
-fn known_command_relative_e_mode_lost() {
+fn regression_command_relative_e_mode_lost() {
     check_known("M83\nG28 X0\n");
+}
+
+/// M82/M83 pass through as commands, so the backend's own `M83` (printed before the
+/// first E move) is read back as an extra `M83` command block.
+#[test]
+fn known_e_mode_setup_read_back_as_command() {
+    check_known("G1 X1 E1 F100\n");
 }

@@ -157,9 +157,14 @@ impl<W: Write> Emitter<W> {
             number: 0,
             modes: Modes::default(),
             printed: [None; AXIS_COUNT],
-            pos: Joints::default(),
+            // Like the frontend, the extruder's logical position starts at 0.
+            pos: {
+                let mut p = Joints::default();
+                p.set(Axis::E, 0.0);
+                p
+            },
             offsets: [0.0; AXIS_COUNT],
-            e_units: None,
+            e_units: Some(0),
         }
     }
 
@@ -287,9 +292,18 @@ impl<W: Write> Emitter<W> {
     fn ensure_modes(
         &mut self,
         motion: &Motion,
-        prints_e: bool,
+        e_mode: Option<bool>,
         block: &Block,
     ) -> Result<(), Diagnostic> {
+        // The extruder mode goes on its own line, first: read back, it is a command of its
+        // own, and printing it first keeps the text a fixpoint of parse and print.
+        if let Some(relative) = e_mode
+            && self.modes.e_relative != Some(relative)
+        {
+            self.line.push_str(if relative { "M83" } else { "M82" });
+            self.end_line(&[], true)?;
+            self.modes.e_relative = Some(relative);
+        }
         let mut setup = String::new();
         if self.modes.metric != Some(true) {
             setup.push_str("G21 ");
@@ -342,13 +356,7 @@ impl<W: Write> Emitter<W> {
             setup.push(' ');
             self.modes.plane = Some(arc.plane);
         }
-        if prints_e {
-            let relative = self.fmt.extrusion == Extrusion::Relative;
-            if self.modes.e_relative != Some(relative) {
-                setup.push_str(if relative { "M83 " } else { "M82 " });
-                self.modes.e_relative = Some(relative);
-            }
-        }
+
         if !setup.is_empty() {
             self.line.push_str(setup.trim_end());
             self.end_line(&[], true)?;
@@ -371,6 +379,8 @@ impl<W: Write> Emitter<W> {
         // Work out the axis words first: the mode line depends on whether E is printed.
         let mut words: [Option<i64>; AXIS_COUNT] = [None; AXIS_COUNT];
         let mut any = false;
+        let mut e_target = None;
+        let mut e_absolute_once = false;
         for a in Axis::ALL {
             let Some(v) = target.get(a) else { continue };
             // A machine-frame (G53) move names only its own axes.
@@ -380,14 +390,26 @@ impl<W: Write> Emitter<W> {
             let d = self.fmt.decimals.axis(a);
             if a == Axis::E && self.fmt.extrusion == Extrusion::Relative && !motion.machine_frame {
                 let u = to_units(v, d).ok_or_else(|| too_large('E', v, block))?;
+                e_target = Some(u);
                 let base = match (self.e_units, self.pos.get(Axis::E)) {
-                    (Some(b), _) => b,
-                    (None, Some(p)) => to_units(p, d).unwrap_or(u),
-                    (None, None) => 0,
+                    (Some(b), _) => Some(b),
+                    (None, Some(p)) => to_units(p, d),
+                    (None, None) => None,
                 };
-                if u != base {
-                    words[a.index()] = Some(u - base);
-                    any = true;
+                match base {
+                    Some(base) if u != base => {
+                        words[a.index()] = Some(u - base);
+                        any = true;
+                    }
+                    Some(_) => {}
+                    // The controller's E is not known: this move says where E goes, in M82.
+                    None => {
+                        let prog = v + self.offsets[a.index()];
+                        words[a.index()] =
+                            Some(to_units(prog, d).ok_or_else(|| too_large('E', prog, block))?);
+                        e_absolute_once = true;
+                        any = true;
+                    }
                 }
                 continue;
             }
@@ -431,8 +453,10 @@ impl<W: Write> Emitter<W> {
                 }
             }
         }
-        let prints_e = words[Axis::E.index()].is_some();
-        self.ensure_modes(motion, prints_e, block)?;
+        let e_mode = words[Axis::E.index()].map(|_| {
+            self.fmt.extrusion == Extrusion::Relative && !e_absolute_once && !motion.machine_frame
+        });
+        self.ensure_modes(motion, e_mode, block)?;
 
         let code = match motion.kind {
             MotionKind::Rapid => "G0",
@@ -512,11 +536,9 @@ impl<W: Write> Emitter<W> {
         // Bookkeeping.
         for a in Axis::ALL {
             if a == Axis::E && self.fmt.extrusion == Extrusion::Relative {
-                if let Some(du) = words[a.index()] {
-                    let base = self.e_units.unwrap_or(0);
-                    self.e_units = Some(base + du);
-                } else if let Some(v) = target.get(a) {
-                    self.e_units = to_units(v, self.fmt.decimals.extruder).or(self.e_units);
+                // The printed numbers put E exactly here.
+                if e_target.is_some() {
+                    self.e_units = e_target;
                 }
                 continue;
             }
@@ -676,9 +698,13 @@ impl<W: Write> Emitter<W> {
             }
             // E modes only where this output has used them or the line moves E (LinuxCNC
             // lacks M82/M83).
-            if self.modes.e_relative != Some(m.relative_e)
-                && (self.modes.e_relative.is_some() || moves_e(&v.text))
+            if let Some(plane) = m.plane
+                && self.modes.plane != Some(plane)
             {
+                self.text(plane.gcode());
+                self.modes.plane = Some(plane);
+            }
+            if self.modes.e_relative != Some(m.relative_e) && moves_e(&v.text) {
                 self.text(if m.relative_e { "M83" } else { "M82" });
                 self.modes.e_relative = Some(m.relative_e);
             }
@@ -693,9 +719,8 @@ impl<W: Write> Emitter<W> {
         self.modes = Modes {
             metric: kept.map(|m| !m.inch),
             absolute: kept.map(|m| !m.relative),
-            e_relative: kept
-                .and(self.modes.e_relative)
-                .map(|_| kept.is_some_and(|m| m.relative_e)),
+            // Aligned above when the line moves E; otherwise it is untouched.
+            e_relative: kept.and(self.modes.e_relative),
             plane: if v.keeps_modes {
                 self.modes.plane
             } else {

@@ -376,8 +376,11 @@ pub struct WrittenModes {
     pub inch: bool,
     /// The command has axis words written in relative mode (G91).
     pub relative: bool,
-    /// Extruder words were relative (M83).
+    /// Extruder words were relative (M83, or G91).
     pub relative_e: bool,
+    /// The arc plane, for a line that moves along arcs or runs a cycle (G2/G3, G73-G89)
+    /// in it.
+    pub plane: Option<Plane>,
 }
 
 /// A command the IR does not model, kept as its words (`M3 S12000`, `T2 M6`, `G28 X Y`).

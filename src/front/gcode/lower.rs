@@ -227,7 +227,19 @@ impl Lowerer {
         // The modes are those in force before the line (it was written in them).
         let (modes, keeps_modes) = match placement {
             Placement::Inside => (None, false),
-            Placement::TopLevel { keeps_modes } => (Some(self.modes()), keeps_modes),
+            Placement::TopLevel { keeps_modes } => {
+                // The extruder mode matters only to a line that moves E.
+                let mut modes = self.modes();
+                modes.relative_e &= mentions_e(text);
+                if matches!(
+                    self.motion,
+                    MotionMode::Arc { .. } | MotionMode::Unsupported
+                ) || uses_plane(text)
+                {
+                    modes.plane = Some(self.plane);
+                }
+                (Some(modes), keeps_modes)
+            }
         };
         self.pos.forget(clobbers);
         Block::new(
@@ -246,7 +258,9 @@ impl Lowerer {
         WrittenModes {
             inch: self.inch,
             relative: self.relative,
-            relative_e: self.relative_e,
+            // G91 moves E relatively too.
+            relative_e: self.relative_e || self.relative,
+            plane: None,
         }
     }
 
@@ -612,8 +626,10 @@ impl Lowerer {
 
     /// Applies modal words of a line that is otherwise passed through, so that following
     /// plain lines are read in the modes the controller will be in.
+    /// Returns whether the line has such words (whatever the modes were before, so the
+    /// answer depends on the line alone).
     fn apply_plain_modes(&mut self, toks: &[Spanned<'_>]) -> bool {
-        let before = (self.modes(), self.plane);
+        let mut any = false;
         for t in toks {
             if let Tok::Word(w) = t.1 {
                 let (letter, number) = split_word(w);
@@ -630,12 +646,13 @@ impl Lowerer {
                     ('G', (19, 0)) => self.plane = Plane::YZ,
                     ('M', (82, 0)) => self.relative_e = false,
                     ('M', (83, 0)) => self.relative_e = true,
-                    _ => {}
+                    _ => continue,
                 }
+                any = true;
             }
         }
         self.motion = MotionMode::None;
-        before != (self.modes(), self.plane)
+        any
     }
 
     fn command_clobbers(&self, toks: &[Spanned<'_>]) -> AxisSet {
@@ -1012,7 +1029,12 @@ impl Lowerer {
             self.motion = m;
         }
         let m_list: Small<Code> = m_codes.iter().map(|(c, _)| *c).collect();
-        let passthrough_m: Small<Word<'_>> = m_codes.iter().map(|(_, w)| *w).collect();
+        // M82/M83 are resolved here; the backend puts its own extruder mode before E moves.
+        let passthrough_m: Small<Word<'_>> = m_codes
+            .iter()
+            .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
+            .map(|(_, w)| *w)
+            .collect();
         // F applies to this block and after; in G93 it is per block.
         let mut feed_written = false;
         if let Some(f) = params[(b'F' - b'A') as usize]
@@ -1319,7 +1341,10 @@ impl Lowerer {
         let clob = clobbers(g, m, named);
         self.pos.forget(clob);
         let modes = if with_axes && !named.is_empty() {
-            self.modes()
+            WrittenModes {
+                relative_e: self.relative_e && named.contains(Axis::E),
+                ..self.modes()
+            }
         } else {
             WrittenModes::default()
         };
@@ -1756,6 +1781,27 @@ fn letter_error(line_no: u32, text: &str, s: usize, l: &str) -> Diagnostic {
         "write a value after it (for example `{}0`) or remove it",
         l.to_ascii_uppercase()
     ))
+}
+
+/// Whether a line has a G code that works in the selected plane (arcs, canned cycles).
+fn uses_plane(text: &str) -> bool {
+    let mut toks = Vec::new();
+    lex_line(text, &mut toks);
+    toks.iter().any(|t| match t.1 {
+        Tok::Word(w) => {
+            let (l, n) = split_word(w);
+            l == 'G' && matches!(parse_code(&n), Some((2 | 3 | 73 | 76 | 81..=89, 0)))
+        }
+        _ => false,
+    })
+}
+
+/// Whether a line has an E word with a number.
+fn mentions_e(text: &str) -> bool {
+    let mut toks = Vec::new();
+    lex_line(text, &mut toks);
+    toks.iter()
+        .any(|t| matches!(t.1, Tok::Word(w) if w.starts_with(['E', 'e'])))
 }
 
 fn contains_m99(text: &str) -> bool {
