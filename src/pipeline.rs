@@ -46,17 +46,22 @@ pub struct Summary {
 pub struct Builder {
     preset: Preset,
     dump_after: Option<String>,
-    dump: Option<Box<dyn Write>>,
+    dump: Option<Box<dyn Write + Send>>,
 }
 
 /// A configured pipeline, ready to run.
 pub struct Pipeline {
     preset: Preset,
+    stages: Stages,
+    progress: Option<Box<dyn FnMut(u64)>>,
+}
+
+/// The passes and the IR dump point: everything between frontend and backend.
+struct Stages {
     passes: Vec<Box<dyn Pass>>,
     /// Dump point: 0 after the frontend, i + 1 after pass i.
     dump_at: Option<usize>,
-    dump: Option<Box<dyn Write>>,
-    progress: Option<Box<dyn FnMut(u64)>>,
+    dump: Option<Box<dyn Write + Send>>,
 }
 
 impl Builder {
@@ -90,7 +95,7 @@ impl Builder {
     }
 
     /// Writes the IR dump after pass `name` (or `front`, after the frontend) to `out`.
-    pub fn dump_after(mut self, name: &str, out: Box<dyn Write>) -> Self {
+    pub fn dump_after(mut self, name: &str, out: Box<dyn Write + Send>) -> Self {
         self.dump_after = Some(name.to_string());
         self.dump = Some(out);
         self
@@ -123,9 +128,11 @@ impl Builder {
         };
         Ok(Pipeline {
             preset: self.preset,
-            passes,
-            dump_at,
-            dump: self.dump,
+            stages: Stages {
+                passes,
+                dump_at,
+                dump: self.dump,
+            },
             progress: None,
         })
     }
@@ -148,23 +155,28 @@ impl Pipeline {
     }
 
     /// Reads G-code from `input` and writes the preset's output format to `output`.
-    /// Diagnostics go to `on_diag` as they occur (the backend's at the end). `Err` only for
-    /// I/O failures of the writer; input errors are counted in the summary.
+    /// Frontend diagnostics go to `on_diag` as they occur, those of the passes and the
+    /// backend at the end. `Err` only for I/O failures of the writer; input errors are
+    /// counted in the summary.
     ///
-    /// The backend runs on a second thread, fed with batches of blocks through a bounded
-    /// channel, so reading and writing overlap and memory stays bounded.
+    /// Two threads share the work: this one reads and lowers the input; a second one runs
+    /// the passes and the backend. Batches of blocks go between them through a bounded
+    /// channel, so memory stays bounded.
     pub fn run_gcode(
         &mut self,
         input: impl BufRead,
         output: impl Write + Send,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Result<Summary, Diagnostic> {
-        const BATCH: usize = 512;
+        const BATCH: usize = 4096;
         let mut front = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
-        let preset = self.preset.clone();
-        let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Block>>(4);
-        let (summary, written, back_diags) = std::thread::scope(|scope| {
-            let writer = scope.spawn(move || {
+        let preset = &self.preset;
+        let stages = &mut self.stages;
+        let progress = &mut self.progress;
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Block>>(2);
+        let mut summary = Summary::default();
+        let (blocks_out, back_diags) = std::thread::scope(|scope| {
+            let worker = scope.spawn(move || {
                 let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
                 let mut diags = Vec::new();
                 let mut written = 0u64;
@@ -174,14 +186,19 @@ impl Pipeline {
                         Emit::Gcode => Box::new(back::gcode::Writer::new(&mut out, &preset.gcode)),
                         Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
                     };
-                    for batch in rx {
-                        for b in &batch {
+                    let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
+                        for b in blocks.drain(..) {
                             written += 1;
-                            if let Err(d) = backend.write_block(b, &mut diags) {
+                            if let Err(d) = backend.write_block(&b, diags) {
                                 diags.push(d);
                             }
                         }
+                    };
+                    let mut next = Vec::with_capacity(BATCH);
+                    for mut batch in rx {
+                        stages.flow(0, &mut batch, &mut next, &mut diags, &mut deliver);
                     }
+                    stages.finish(&mut diags, &mut deliver);
                     if let Err(d) = backend.finish() {
                         diags.push(d);
                     }
@@ -191,15 +208,32 @@ impl Pipeline {
                 }
                 (written, diags)
             });
-            let mut deliver = |blocks: &mut Vec<Block>, _: &mut Vec<Diagnostic>| {
-                if !blocks.is_empty() {
-                    // A closed channel means the writer stopped; its error comes at join.
-                    let _ = tx.send(std::mem::replace(blocks, Vec::with_capacity(BATCH)));
+            let mut diags = Vec::new();
+            let mut counter = 0u64;
+            loop {
+                let mut batch = Vec::with_capacity(BATCH);
+                front.next_batch(&mut batch, BATCH, &mut diags);
+                if !diags.is_empty() {
+                    report(&mut diags, on_diag, &mut summary);
                 }
-            };
-            let summary = self.run_into(&mut front, BATCH, &mut deliver, on_diag);
+                if batch.is_empty() {
+                    break;
+                }
+                summary.blocks_in += batch.len() as u64;
+                counter += batch.len() as u64;
+                if counter >= 1 << 14 {
+                    counter = 0;
+                    if let Some(p) = progress.as_mut() {
+                        p(front.bytes_read());
+                    }
+                }
+                // A closed channel means the worker stopped; its error comes at join.
+                if tx.send(batch).is_err() {
+                    break;
+                }
+            }
             drop(tx);
-            let (written, diags) = writer.join().unwrap_or_else(|_| {
+            worker.join().unwrap_or_else(|_| {
                 (
                     0,
                     vec![Diagnostic::error(
@@ -207,22 +241,16 @@ impl Pipeline {
                         "the backend stopped unexpectedly",
                     )],
                 )
-            });
-            (summary, written, diags)
+            })
         });
-        let mut summary = summary;
-        summary.blocks_out = written;
+        summary.blocks_out = blocks_out;
         let mut io_error = None;
         for d in back_diags {
-            match d.severity {
-                Severity::Error => summary.errors += 1,
-                Severity::Warning => summary.warnings += 1,
-                Severity::Note => {}
-            }
             if d.code == "io::write" && io_error.is_none() {
+                summary.errors += 1;
                 io_error = Some(d);
             } else {
-                on_diag(d);
+                report(&mut vec![d], on_diag, &mut summary);
             }
         }
         match io_error {
@@ -231,13 +259,15 @@ impl Pipeline {
         }
     }
 
-    /// Runs `front` through the passes into `back`.
+    /// Runs `front` through the passes into `back`, on this thread.
     pub fn run(
         &mut self,
         front: &mut dyn Frontend,
         back: &mut dyn Backend,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Summary {
+        let mut summary = Summary::default();
+        let mut diags = Vec::new();
         let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
             for b in blocks.drain(..) {
                 if let Err(d) = back.write_block(&b, diags) {
@@ -245,41 +275,19 @@ impl Pipeline {
                 }
             }
         };
-        let mut summary = self.run_into(front, 1, &mut deliver, on_diag);
-        let mut diags = Vec::new();
-        if let Err(d) = back.finish() {
-            diags.push(d);
-        }
-        report(&mut diags, on_diag, &mut summary);
-        summary
-    }
-
-    /// Runs `front` through the passes, `batch` blocks at a time, handing the resulting
-    /// blocks to `deliver` (which empties or replaces the vector).
-    fn run_into(
-        &mut self,
-        front: &mut dyn Frontend,
-        batch: usize,
-        deliver: &mut dyn FnMut(&mut Vec<Block>, &mut Vec<Diagnostic>),
-        on_diag: &mut dyn FnMut(Diagnostic),
-    ) -> Summary {
-        let mut summary = Summary::default();
-        let mut diags = Vec::new();
-        let mut cur: Vec<Block> = Vec::with_capacity(batch);
-        let mut next: Vec<Block> = Vec::with_capacity(batch);
+        let mut cur = Vec::new();
+        let mut next = Vec::new();
         let mut counter = 0u64;
-        loop {
-            cur.clear();
-            front.next_batch(&mut cur, batch, &mut diags);
-            if cur.is_empty() {
-                break;
-            }
-            summary.blocks_in += cur.len() as u64;
-            counter += cur.len() as u64;
-            self.flow(0, &mut cur, &mut next, &mut diags, deliver, &mut summary);
+        while let Some(block) = front.next_block(&mut diags) {
+            summary.blocks_in += 1;
+            summary.blocks_out += 1;
+            cur.push(block);
+            self.stages
+                .flow(0, &mut cur, &mut next, &mut diags, &mut deliver);
             if !diags.is_empty() {
                 report(&mut diags, on_diag, &mut summary);
             }
+            counter += 1;
             if counter >= 1 << 14 {
                 counter = 0;
                 if let Some(p) = &mut self.progress {
@@ -287,26 +295,16 @@ impl Pipeline {
                 }
             }
         }
-        report(&mut diags, on_diag, &mut summary);
-        for i in 0..self.passes.len() {
-            cur.clear();
-            self.passes[i].finish(&mut Output::new(&mut cur, &mut diags));
-            self.flow(
-                i + 1,
-                &mut cur,
-                &mut next,
-                &mut diags,
-                deliver,
-                &mut summary,
-            );
-        }
-        if let Some(d) = &mut self.dump {
-            let _ = d.flush();
+        self.stages.finish(&mut diags, &mut deliver);
+        if let Err(d) = back.finish() {
+            diags.push(d);
         }
         report(&mut diags, on_diag, &mut summary);
         summary
     }
+}
 
+impl Stages {
     /// Sends the blocks in `cur` through passes `from..` and on to `deliver`.
     fn flow(
         &mut self,
@@ -315,7 +313,6 @@ impl Pipeline {
         next: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
         deliver: &mut dyn FnMut(&mut Vec<Block>, &mut Vec<Diagnostic>),
-        summary: &mut Summary,
     ) {
         if self.dump_at == Some(from) {
             self.dump_blocks(cur);
@@ -331,8 +328,25 @@ impl Pipeline {
                 self.dump_blocks(cur);
             }
         }
-        summary.blocks_out += cur.len() as u64;
         deliver(cur, diags);
+    }
+
+    /// Lets every pass release what it holds, in order, through the passes after it.
+    fn finish(
+        &mut self,
+        diags: &mut Vec<Diagnostic>,
+        deliver: &mut dyn FnMut(&mut Vec<Block>, &mut Vec<Diagnostic>),
+    ) {
+        let mut cur = Vec::new();
+        let mut next = Vec::new();
+        for i in 0..self.passes.len() {
+            cur.clear();
+            self.passes[i].finish(&mut Output::new(&mut cur, diags));
+            self.flow(i + 1, &mut cur, &mut next, diags, deliver);
+        }
+        if let Some(d) = &mut self.dump {
+            let _ = d.flush();
+        }
     }
 
     fn dump_blocks(&mut self, blocks: &[Block]) {

@@ -36,8 +36,9 @@ impl<'a> Output<'a> {
 /// A transformation over the block stream.
 ///
 /// A pass may hold back a bounded number of blocks (look-ahead) and must release them
-/// in [`Pass::finish`].
-pub trait Pass {
+/// in [`Pass::finish`]. Passes are `Send`: the pipeline runs them beside the frontend, on
+/// the writer's thread.
+pub trait Pass: Send {
     /// The kebab-case name, as in [`REGISTRY`].
     fn name(&self) -> &'static str;
     /// Consumes one block and pushes zero or more blocks.

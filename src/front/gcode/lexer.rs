@@ -61,8 +61,14 @@ pub type Spanned<'a> = (usize, Tok<'a>, usize);
 /// ```
 pub fn lex_line<'a>(line: &'a str, out: &mut Vec<Spanned<'a>>) {
     out.clear();
+    out.extend(tokens(line));
+}
+
+/// The tokens of `line`, lazily (no allocation).
+pub fn tokens(line: &str) -> impl Iterator<Item = Spanned<'_>> {
     let mut lex = Tok::lexer(line);
-    while let Some(tok) = lex.next() {
+    std::iter::from_fn(move || {
+        let tok = lex.next()?;
         let span = lex.span();
         let tok = match tok {
             Ok(Tok::OpenParen) => {
@@ -82,8 +88,8 @@ pub fn lex_line<'a>(line: &'a str, out: &mut Vec<Spanned<'a>>) {
             Err(()) => Tok::Other(lex.slice()),
         };
         let end = span.start.max(lex.span().end);
-        out.push((span.start, tok, end));
-    }
+        Some((span.start, tok, end))
+    })
 }
 
 /// Length up to and including the `)` that closes an already opened comment.

@@ -284,9 +284,12 @@ impl Lowerer {
         }
         self.saw_text = true;
         // Control characters never belong in G-code: most likely a binary file.
-        if let Some(at) = text
-            .bytes()
-            .position(|b| (b < 0x20 && !matches!(b, b'\t' | b'\r' | 0x0b | 0x0c)) || b == 0x7f)
+        // The quick scan (vectorised) finds no byte below 0x20 in almost every line.
+        let suspicious = text.bytes().any(|b| b < 0x20 || b == 0x7f);
+        if suspicious
+            && let Some(at) = text
+                .bytes()
+                .position(|b| (b < 0x20 && !matches!(b, b'\t' | b'\r' | 0x0b | 0x0c)) || b == 0x7f)
         {
             diags.push(
                 Diagnostic::error(
@@ -333,8 +336,7 @@ impl Lowerer {
             return;
         }
 
-        let mut toks: Vec<Spanned<'_>> = Vec::with_capacity(16);
-        lex_line(text, &mut toks);
+        let toks: SmallVec<[Spanned<'_>; 24]> = super::lexer::tokens(text).collect();
 
         if let Some(Tok::Ident(word)) = toks.first().map(|t| t.1) {
             let lower = word.to_ascii_lowercase();
