@@ -366,7 +366,13 @@ fn checksum_mismatch() {
 fn checksum_mid_line() {
     let diags = check_text("checksum_mid_line.gcode", "checksum_mid_line");
     // The checksum is marked: it must end the line.
-    expect(only(&diags), Severity::Error, "gcode::checksum-position", 3, 9);
+    expect(
+        only(&diags),
+        Severity::Error,
+        "gcode::checksum-position",
+        3,
+        9,
+    );
 }
 
 #[test]
