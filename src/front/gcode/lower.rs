@@ -65,12 +65,44 @@ fn parse_code(number: &str) -> Option<Code> {
 #[derive(Debug, Clone, Copy)]
 struct Word<'a> {
     letter: char,
-    number: &'a str,
     value: f64,
     start: usize,
     end: usize,
     /// The source slice, for pass-through text.
     text: &'a str,
+}
+
+impl<'a> Word<'a> {
+    /// The number as written.
+    fn number(&self) -> &'a str {
+        number_slice(self.text)
+    }
+}
+
+/// The first word of each letter (but G, M and N) of a block, as indices into its words:
+/// a few bytes per line instead of an array of words.
+#[derive(Clone, Copy)]
+struct Slots<'w, 'a> {
+    words: &'w [Word<'a>],
+    index: [u32; 26],
+}
+
+impl<'w, 'a> Slots<'w, 'a> {
+    const NONE: u32 = u32::MAX;
+
+    /// The word with `letter` (upper case), if the block has one.
+    fn get(&self, letter: char) -> Option<Word<'a>> {
+        let slot = (letter as u8).wrapping_sub(b'A') as usize;
+        match self.index.get(slot) {
+            Some(&i) if i != Self::NONE => Some(self.words[i as usize]),
+            _ => None,
+        }
+    }
+
+    /// The word of `axis`, if the block has one.
+    fn axis(&self, axis: Axis) -> Option<Word<'a>> {
+        self.get(axis.letter())
+    }
 }
 
 /// Which G-code modal group a code belongs to, for the conflict check.
@@ -766,7 +798,6 @@ impl Lowerer {
                     }
                     words.push(Word {
                         letter,
-                        number: number_slice(w),
                         value,
                         start: s,
                         end: s + w.len(),
@@ -867,13 +898,12 @@ impl Lowerer {
         // Sort the words.
         let mut g_codes: Small<(Code, Word<'_>)> = Small::new();
         let mut m_codes: Small<(Code, Word<'_>)> = Small::new();
-        let mut axes: [Option<Word<'_>>; AXIS_COUNT] = [None; AXIS_COUNT];
-        let mut params: [Option<Word<'_>>; 26] = [None; 26];
+        let mut index = [Slots::NONE; 26];
         let mut rest: Small<Word<'_>> = Small::new();
-        for w in &words {
+        for (wi, w) in words.iter().enumerate() {
             match w.letter {
                 'G' | 'M' => {
-                    let Some(code) = parse_code(w.number) else {
+                    let Some(code) = parse_code(w.number()) else {
                         diags.push(err(
                             "gcode::code",
                             format!("`{}` is not a valid code", w.text),
@@ -890,14 +920,12 @@ impl Lowerer {
                 }
                 'N' => {}
                 l => {
-                    let slot = match Axis::from_letter(l) {
-                        Some(a) => &mut axes[a.index()],
-                        None => &mut params[(l as u8 - b'A') as usize],
-                    };
-                    if let Some(prev) = slot
+                    let slot = &mut index[(l as u8 - b'A') as usize];
+                    if *slot != Slots::NONE
                         && (Axis::from_letter(l).is_some()
                             || matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'S'))
                     {
+                        let prev = words[*slot as usize];
                         diags.push(
                             err(
                                 "gcode::duplicate-word",
@@ -912,8 +940,8 @@ impl Lowerer {
                         );
                         return;
                     }
-                    if slot.is_none() {
-                        *slot = Some(*w);
+                    if *slot == Slots::NONE {
+                        *slot = wi as u32;
                     }
                     if Axis::from_letter(l).is_none()
                         && !matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'P')
@@ -923,6 +951,10 @@ impl Lowerer {
                 }
             }
         }
+        let slots = Slots {
+            words: &words,
+            index,
+        };
         // Modal group conflicts.
         for (i, (code, w)) in g_codes.iter().enumerate() {
             if let Some(group) = g_group(*code)
@@ -949,7 +981,7 @@ impl Lowerer {
         }
         let named: AxisSet = Axis::ALL
             .into_iter()
-            .filter(|a| axes[a.index()].is_some())
+            .filter(|a| slots.axis(*a).is_some())
             .collect();
 
         // Modal settings, in RS274 execution order.
@@ -1039,7 +1071,7 @@ impl Lowerer {
             .collect();
         // F applies to this block and after; in G93 it is per block.
         let mut feed_written = false;
-        if let Some(f) = params[(b'F' - b'A') as usize]
+        if let Some(f) = slots.get('F')
             && !dwell
         {
             if f.value < 0.0 {
@@ -1076,15 +1108,13 @@ impl Lowerer {
                 .copied()
                 .collect();
             let arc_here = matches!(motion_here, Some(MotionMode::Arc { .. }))
-                && ['I', 'J', 'K', 'R']
-                    .iter()
-                    .any(|l| params[(*l as u8 - b'A') as usize].is_some());
+                && ['I', 'J', 'K', 'R'].iter().any(|l| slots.get(*l).is_some());
             let becomes_motion =
                 !axis_user && offset_code.is_none() && (!named.is_empty() || arc_here);
             if !dwell && !becomes_motion {
                 // The command's own parameters stay with it (`G54.1 P2`, `M98 P1 L2`).
                 for l in ['I', 'J', 'K', 'R', 'P'] {
-                    if let Some(w) = params[(l as u8 - b'A') as usize] {
+                    if let Some(w) = slots.get(l) {
                         v.push(w);
                     }
                 }
@@ -1108,7 +1138,7 @@ impl Lowerer {
                         );
                     }
                     for a in named.iter() {
-                        let Some(w) = axes[a.index()] else { continue };
+                        let Some(w) = slots.axis(a) else { continue };
                         let v = w.value * self.unit(a);
                         declared.set(a, v);
                         match self.pos.get(a) {
@@ -1146,9 +1176,9 @@ impl Lowerer {
                 }),
             ));
         } else if dwell {
-            let p = params[(b'P' - b'A') as usize];
-            let s = params[(b'S' - b'A') as usize];
-            let x = axes[Axis::X.index()];
+            let p = slots.get('P');
+            let s = slots.get('S');
+            let x = slots.axis(Axis::X);
             let seconds = match (p, s, x) {
                 (Some(p), None, None) => Some(if self.options.dwell_p_milliseconds {
                     p.value / 1000.0
@@ -1179,9 +1209,9 @@ impl Lowerer {
             }
         } else if axis_user {
             let mut words = command_words.clone();
-            words.extend(named.iter().filter_map(|a| axes[a.index()]));
+            words.extend(named.iter().filter_map(|a| slots.axis(a)));
             // A probe's or homing command's feed is its own (and stays modal).
-            words.extend(params[(b'F' - b'A') as usize]);
+            words.extend(slots.get('F'));
             words.sort_by_key(|w| w.start);
             // Bare letters name axes too (`G28 X Z` homes X and Z).
             let bare_axes: AxisSet = bare
@@ -1209,9 +1239,7 @@ impl Lowerer {
         } else if !named.is_empty()
             || (motion_here.is_some() && !bare.is_empty())
             || (matches!(motion_here, Some(MotionMode::Arc { .. }))
-                && ['I', 'J', 'K', 'R']
-                    .iter()
-                    .any(|l| params[(*l as u8 - b'A') as usize].is_some()))
+                && ['I', 'J', 'K', 'R'].iter().any(|l| slots.get(*l).is_some()))
         {
             if let Some(&(s, l)) = bare.first() {
                 diags.push(letter_error(line_no, text, s, l));
@@ -1237,7 +1265,7 @@ impl Lowerer {
                     ));
                 }
                 MotionMode::None => {
-                    let w = named.iter().find_map(|a| axes[a.index()]);
+                    let w = named.iter().find_map(|a| slots.axis(a));
                     let (s, e) = w.map_or((0, text.len()), |w| (w.start, w.end));
                     diags.push(
                         err(
@@ -1264,8 +1292,7 @@ impl Lowerer {
                         text,
                         span,
                         mode,
-                        &axes,
-                        &params,
+                        &slots,
                         named,
                         machine_frame,
                         feed_written,
@@ -1338,7 +1365,7 @@ impl Lowerer {
                 text.push(' ');
             }
             text.push(w.letter);
-            text.push_str(w.number);
+            text.push_str(w.number());
         }
         let clob = clobbers(g, m, named);
         self.pos.forget(clob);
@@ -1366,8 +1393,7 @@ impl Lowerer {
         text: &str,
         span: Span,
         mode: MotionMode,
-        axes: &[Option<Word<'_>>; AXIS_COUNT],
-        params: &[Option<Word<'_>>; 26],
+        slots: &Slots<'_, '_>,
         named: AxisSet,
         machine_frame: bool,
         feed_written: bool,
@@ -1375,7 +1401,7 @@ impl Lowerer {
         diags: &mut Vec<Diagnostic>,
     ) -> Option<Block> {
         let line_no = span.line;
-        let param = |l: char| params[(l as u8 - b'A') as usize];
+        let param = |l: char| slots.get(l);
         let start = self.pos;
         // A relative move from an unknown position cannot be made absolute: it travels as
         // written, in the modes it was written in, and its axes stay unknown.
@@ -1413,7 +1439,7 @@ impl Lowerer {
         }
         let mut target = self.pos;
         for a in named.iter() {
-            let Some(w) = axes[a.index()] else { continue };
+            let Some(w) = slots.axis(a) else { continue };
             let v = w.value * self.unit(a);
             let rel = if a == Axis::E {
                 self.relative || self.relative_e
