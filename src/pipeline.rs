@@ -168,7 +168,7 @@ impl Pipeline {
         output: impl Write + Send,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Result<Summary, Diagnostic> {
-        const BATCH: usize = 4096;
+        const BATCH: usize = 1024;
         let mut front = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
         let preset = &self.preset;
         let stages = &mut self.stages;
