@@ -4,7 +4,7 @@ use std::io::Write;
 
 use serde::{Deserialize, Serialize};
 
-use super::{Backend, CommentOutput, Decimals, Emitter, EmitterBackend, Extrusion, Flavor, Format};
+use super::{CommentOutput, Decimals, Emitter, Extrusion, Flavor, Format};
 use crate::diag::Diagnostic;
 use crate::ir::Block;
 
@@ -56,7 +56,7 @@ impl Default for Options {
 /// let text = gcode::write_string(&program.blocks, &gcode::Options::default()).unwrap();
 /// assert_eq!(text, "G21 G90 G94\nG1 X25.4 F254 (inch)\n");
 /// ```
-pub struct Writer<W: Write>(EmitterBackend<W>);
+pub struct Writer<W: Write>(Emitter<W>);
 
 impl<W: Write> Writer<W> {
     /// A writer with `options`.
@@ -72,22 +72,11 @@ impl<W: Write> Writer<W> {
             dwell_milliseconds: options.dwell_milliseconds,
             dwell_letter: 'P',
         };
-        Writer(EmitterBackend(Emitter::new(out, Flavor::Plain, fmt)))
+        Writer(Emitter::new(out, Flavor::Plain, fmt))
     }
 }
 
-impl<W: Write> Backend for Writer<W> {
-    fn write_block(
-        &mut self,
-        block: &Block,
-        diags: &mut Vec<Diagnostic>,
-    ) -> Result<(), Diagnostic> {
-        self.0.write_block(block, diags)
-    }
-    fn finish(&mut self) -> Result<(), Diagnostic> {
-        self.0.finish()
-    }
-}
+super::writer_backend!(Writer);
 
 /// Prints `blocks` as plain G-code.
 pub fn write_string(blocks: &[Block], options: &Options) -> Result<String, Vec<Diagnostic>> {

@@ -796,21 +796,37 @@ pub(crate) fn io_error(e: std::io::Error) -> Diagnostic {
     Diagnostic::error("io::write", format!("cannot write the output: {e}"))
 }
 
-/// A backend made from the emitter and a flavour.
-pub(crate) struct EmitterBackend<W: Write>(pub(crate) Emitter<W>);
-
-impl<W: Write> Backend for EmitterBackend<W> {
+impl<W: Write> Backend for Emitter<W> {
     fn write_block(
         &mut self,
         block: &Block,
         diags: &mut Vec<Diagnostic>,
     ) -> Result<(), Diagnostic> {
-        self.0.block(block, diags)
+        self.block(block, diags)
     }
     fn finish(&mut self) -> Result<(), Diagnostic> {
-        self.0.flush()
+        self.flush()
     }
 }
+
+/// Implements [`Backend`] for a flavour's `Writer`, a newtype over [`Emitter`].
+macro_rules! writer_backend {
+    ($writer:ident) => {
+        impl<W: std::io::Write> $crate::back::Backend for $writer<W> {
+            fn write_block(
+                &mut self,
+                block: &$crate::ir::Block,
+                diags: &mut Vec<$crate::diag::Diagnostic>,
+            ) -> Result<(), $crate::diag::Diagnostic> {
+                self.0.block(block, diags)
+            }
+            fn finish(&mut self) -> Result<(), $crate::diag::Diagnostic> {
+                self.0.flush()
+            }
+        }
+    };
+}
+use writer_backend;
 
 /// Writes all `blocks` to `backend` and finishes it; errors and warnings are returned
 /// together when any error occurs.

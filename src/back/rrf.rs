@@ -9,7 +9,7 @@ use std::io::Write;
 
 use serde::{Deserialize, Serialize};
 
-use super::{Backend, CommentOutput, Decimals, Emitter, EmitterBackend, Extrusion, Flavor, Format};
+use super::{CommentOutput, Decimals, Emitter, Extrusion, Flavor, Format};
 use crate::diag::Diagnostic;
 use crate::ir::Block;
 
@@ -81,7 +81,7 @@ impl Default for Options {
 /// drop(writer);
 /// assert_eq!(String::from_utf8(text).unwrap(), "G21 G90\nG0 X10 Y5 ; go\n");
 /// ```
-pub struct Writer<W: Write>(EmitterBackend<W>);
+pub struct Writer<W: Write>(Emitter<W>);
 
 impl<W: Write> Writer<W> {
     /// A writer with `options`.
@@ -102,22 +102,11 @@ impl<W: Write> Writer<W> {
             inverse_time: options.inverse_time,
             unsupported: options.unsupported,
         };
-        Writer(EmitterBackend(Emitter::new(out, flavor, fmt)))
+        Writer(Emitter::new(out, flavor, fmt))
     }
 }
 
-impl<W: Write> Backend for Writer<W> {
-    fn write_block(
-        &mut self,
-        block: &Block,
-        diags: &mut Vec<Diagnostic>,
-    ) -> Result<(), Diagnostic> {
-        self.0.write_block(block, diags)
-    }
-    fn finish(&mut self) -> Result<(), Diagnostic> {
-        self.0.finish()
-    }
-}
+super::writer_backend!(Writer);
 
 /// Prints `blocks` as RepRapFirmware G-code.
 pub fn write_string(blocks: &[Block], options: &Options) -> Result<String, Vec<Diagnostic>> {
