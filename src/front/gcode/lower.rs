@@ -711,16 +711,16 @@ impl Lowerer {
     }
 
     /// Lowers a plain block.
-    fn block(
-        &mut self,
-        text: &str,
-        span: Span,
-        line: Line,
+    /// The words, bare letters and comments of a parsed line, after the checks that need
+    /// no modal state (checksum, number range, exponent typos, unterminated comments);
+    /// `None` once an error is reported.
+    fn collect<'a>(
+        text: &'a str,
+        line_no: u32,
+        line: &Line,
         items: &[Item],
-        out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
-    ) {
-        let line_no = span.line;
+    ) -> Option<Collected<'a>> {
         let err = |code: &'static str, msg: String, s: usize, e: usize| {
             Diagnostic::error(code, msg).at_bytes(line_no, text, s, e)
         };
@@ -745,7 +745,7 @@ impl Lowerer {
                     .with_label("wrong checksum")
                     .with_help("the line was changed or corrupted after its checksum was computed"),
                 );
-                return;
+                return None;
             }
         }
 
@@ -770,7 +770,7 @@ impl Lowerer {
                             .with_label("too large")
                             .with_help("G-code values must be finite and below 1e12"),
                         );
-                        return;
+                        return None;
                     }
                     // `X1e400` reads as X1 then E400: almost surely an exponent typo.
                     if letter == 'E'
@@ -794,7 +794,7 @@ impl Lowerer {
                                  put a space before it or write it in capitals",
                             ),
                         );
-                        return;
+                        return None;
                     }
                     words.push(Word {
                         letter,
@@ -816,7 +816,7 @@ impl Lowerer {
                         s,
                         s + 1,
                     ));
-                    return;
+                    return None;
                 }
                 Item::Percent(_) => percent = true,
             }
@@ -850,10 +850,41 @@ impl Lowerer {
                     .with_label("`(` without `)`")
                     .with_help("close the comment with `)` (comments do not span lines)"),
                 );
-                return;
+                return None;
             }
         }
 
+        Some(Collected {
+            words,
+            bare,
+            comments,
+            percent,
+        })
+    }
+
+    fn block(
+        &mut self,
+        text: &str,
+        span: Span,
+        line: Line,
+        items: &[Item],
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) {
+        let line_no = span.line;
+        let err = |code: &'static str, msg: String, s: usize, e: usize| {
+            Diagnostic::error(code, msg).at_bytes(line_no, text, s, e)
+        };
+
+        let Some(Collected {
+            words,
+            bare,
+            comments,
+            percent,
+        }) = Self::collect(text, line_no, &line, items, diags)
+        else {
+            return;
+        };
         if percent {
             if !words.is_empty() {
                 diags.push(err(
@@ -1704,6 +1735,14 @@ impl Lowerer {
         }
         Some(Block::new(span, BlockKind::Motion(motion)))
     }
+}
+
+/// What [`Lowerer::collect`] takes from a parsed line.
+struct Collected<'a> {
+    words: Small<Word<'a>>,
+    bare: Small<(usize, &'a str)>,
+    comments: Vec<Comment>,
+    percent: bool,
 }
 
 /// Where a verbatim line stands.
