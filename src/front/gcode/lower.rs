@@ -1155,46 +1155,7 @@ impl Lowerer {
         };
 
         if let Some(code) = offset_code {
-            let mut declared = Joints::default();
-            match code {
-                OffsetCode::Set => {
-                    if named.is_empty() {
-                        // RepRapFirmware and Marlin: G92 with no axes does nothing useful.
-                        diags.push(
-                            Diagnostic::warning(
-                                "gcode::g92-empty",
-                                "G92 without axis words changes nothing",
-                            )
-                            .at_bytes(line_no, text, 0, text.len()),
-                        );
-                    }
-                    for a in named.iter() {
-                        let Some(w) = slots.axis(a) else { continue };
-                        let v = w.value * self.unit(a);
-                        declared.set(a, v);
-                        match self.pos.get(a) {
-                            Some(p) => self.offsets[a.index()] = v - p,
-                            None => {
-                                self.offsets[a.index()] = 0.0;
-                                self.pos.set(a, v);
-                            }
-                        }
-                    }
-                }
-                OffsetCode::Clear => {
-                    self.offsets = [0.0; AXIS_COUNT];
-                    self.suspended = None;
-                }
-                OffsetCode::Suspend => {
-                    self.suspended = Some(self.offsets);
-                    self.offsets = [0.0; AXIS_COUNT];
-                }
-                OffsetCode::Restore => {
-                    if let Some(s) = self.suspended.take() {
-                        self.offsets = s;
-                    }
-                }
-            }
+            let declared = self.apply_offset(code, &slots, named, line_no, text, diags);
             if !command_words.is_empty() {
                 blocks.push(self.command(span, &command_words, &g_list, &m_list, named, false));
             }
@@ -1207,23 +1168,10 @@ impl Lowerer {
                 }),
             ));
         } else if dwell {
-            let p = slots.get('P');
-            let s = slots.get('S');
-            let x = slots.axis(Axis::X);
-            let seconds = match (p, s, x) {
-                (Some(p), None, None) => Some(if self.options.dwell_p_milliseconds {
-                    p.value / 1000.0
-                } else {
-                    p.value
-                }),
-                (None, Some(s), None) | (None, None, Some(s)) => Some(s.value),
-                _ => None,
-            };
+            let seconds = self.dwell_seconds(&slots);
             match seconds {
-                Some(seconds) if seconds >= 0.0 => {
-                    blocks.push(Block::new(span, BlockKind::Dwell { seconds }))
-                }
-                _ => {
+                Some(seconds) => blocks.push(Block::new(span, BlockKind::Dwell { seconds })),
+                None => {
                     // Dialect dwells (`G4 F0.25`, bare `G4`) pass through as written.
                     let mut words: Small<Word<'_>> =
                         words.iter().filter(|w| w.letter != 'N').copied().collect();
@@ -1371,6 +1319,75 @@ impl Lowerer {
         if !matches!(out[first].kind, BlockKind::Verbatim(_)) {
             out[first].comments = comments;
         }
+    }
+
+    /// Applies a G92-family code to the offsets and returns the values G92 declares.
+    fn apply_offset(
+        &mut self,
+        code: OffsetCode,
+        slots: &Slots<'_, '_>,
+        named: AxisSet,
+        line_no: u32,
+        text: &str,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Joints {
+        let mut declared = Joints::default();
+        match code {
+            OffsetCode::Set => {
+                if named.is_empty() {
+                    // RepRapFirmware and Marlin: G92 with no axes does nothing useful.
+                    diags.push(
+                        Diagnostic::warning(
+                            "gcode::g92-empty",
+                            "G92 without axis words changes nothing",
+                        )
+                        .at_bytes(line_no, text, 0, text.len()),
+                    );
+                }
+                for a in named.iter() {
+                    let Some(w) = slots.axis(a) else { continue };
+                    let v = w.value * self.unit(a);
+                    declared.set(a, v);
+                    match self.pos.get(a) {
+                        Some(p) => self.offsets[a.index()] = v - p,
+                        None => {
+                            self.offsets[a.index()] = 0.0;
+                            self.pos.set(a, v);
+                        }
+                    }
+                }
+            }
+            OffsetCode::Clear => {
+                self.offsets = [0.0; AXIS_COUNT];
+                self.suspended = None;
+            }
+            OffsetCode::Suspend => {
+                self.suspended = Some(self.offsets);
+                self.offsets = [0.0; AXIS_COUNT];
+            }
+            OffsetCode::Restore => {
+                if let Some(s) = self.suspended.take() {
+                    self.offsets = s;
+                }
+            }
+        }
+        declared
+    }
+
+    /// The length of a G4 dwell, seconds, when the block gives it in a form the IR knows.
+    fn dwell_seconds(&self, slots: &Slots<'_, '_>) -> Option<f64> {
+        let seconds = match (slots.get('P'), slots.get('S'), slots.axis(Axis::X)) {
+            (Some(p), None, None) => {
+                if self.options.dwell_p_milliseconds {
+                    p.value / 1000.0
+                } else {
+                    p.value
+                }
+            }
+            (None, Some(s), None) | (None, None, Some(s)) => s.value,
+            _ => return None,
+        };
+        (seconds >= 0.0).then_some(seconds)
     }
 
     fn unit(&self, axis: Axis) -> f64 {
