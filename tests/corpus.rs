@@ -51,16 +51,7 @@ fn render_all(out: &mut String, diags: &[Diagnostic], file: &str) {
 
 /// Runs `blocks` through a backend, collecting its warnings and errors.
 fn emit(blocks: &[Block], backend: &mut dyn Backend) -> Vec<Diagnostic> {
-    let mut diags = Vec::new();
-    for b in blocks {
-        if let Err(d) = backend.write_block(b, &mut diags) {
-            diags.push(d);
-        }
-    }
-    if let Err(d) = backend.finish() {
-        diags.push(d);
-    }
-    diags
+    ncpost::back::write_blocks(backend, blocks)
 }
 
 /// One backend's section: its diagnostics and its text.

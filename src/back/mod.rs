@@ -828,12 +828,17 @@ macro_rules! writer_backend {
 }
 use writer_backend;
 
-/// Writes all `blocks` to `backend` and finishes it; errors and warnings are returned
-/// together when any error occurs.
-pub(crate) fn write_all(
-    backend: &mut dyn Backend,
-    blocks: &[Block],
-) -> Result<(), Vec<Diagnostic>> {
+/// Writes all `blocks` to `backend` and finishes it; returns every diagnostic, in order.
+///
+/// ```
+/// use ncpost::back::{gcode, write_blocks};
+/// use ncpost::front::gcode::{parse_str, Options};
+/// let program = parse_str("G0 X1\n", &Options::default()).unwrap();
+/// let mut text = Vec::new();
+/// let diags = write_blocks(&mut gcode::Writer::new(&mut text, &gcode::Options::default()), &program.blocks);
+/// assert!(diags.is_empty());
+/// ```
+pub fn write_blocks(backend: &mut dyn Backend, blocks: &[Block]) -> Vec<Diagnostic> {
     let mut diags = Vec::new();
     for b in blocks {
         if let Err(d) = backend.write_block(b, &mut diags) {
@@ -843,6 +848,15 @@ pub(crate) fn write_all(
     if let Err(d) = backend.finish() {
         diags.push(d);
     }
+    diags
+}
+
+/// Like [`write_blocks`], but `Err` with every diagnostic when any is an error.
+pub(crate) fn write_all(
+    backend: &mut dyn Backend,
+    blocks: &[Block],
+) -> Result<(), Vec<Diagnostic>> {
+    let diags = write_blocks(backend, blocks);
     if diags.iter().any(Diagnostic::is_error) {
         Err(diags)
     } else {
