@@ -567,9 +567,6 @@ impl<W: Write> Emitter<W> {
             let v = change.declared.values[a.index()];
             self.word(a.letter(), v, self.fmt.decimals.axis(a), block)?;
         }
-        if change.declared.known.is_empty() && change.code == crate::ir::OffsetCode::Set {
-            // Keep the statement as written even though it declares nothing.
-        }
         self.end_line(&block.comments, true)?;
         self.offsets = change.offsets;
         for a in Axis::ALL {

@@ -620,7 +620,7 @@ impl Lowerer {
         }
         // NaN and infinity are never numbers in G-code, whatever the dialect: `XNaN`,
         // `X-inf`, `X nan`.
-        for &(s, tok, e) in toks {
+        for &(_, tok, e) in toks {
             let Tok::Ident(w) = tok else { continue };
             let lower = w.to_ascii_lowercase();
             let name = ["infinity", "nan", "inf"]
@@ -637,7 +637,6 @@ impl Lowerer {
                     .with_label("not a finite number")
                     .with_help("give the word a finite decimal value"),
                 );
-                let _ = s;
                 return Some(Unplain::Error);
             }
         }
@@ -1259,13 +1258,7 @@ impl Lowerer {
                     return;
                 }
                 mode => {
-                    if !passthrough_m.is_empty()
-                        || !other_g.is_empty()
-                        || !rest.is_empty()
-                        || machine_frame
-                    {
-                        // Words other than the move's ride along on the same line.
-                    }
+                    // Words other than the move's (M, T, S, unknown letters) ride along on its line.
                     let extra: Small<&str> = command_words.iter().map(|w| w.text).collect();
                     match self.motion_block(
                         text,
@@ -1713,9 +1706,6 @@ impl Lowerer {
                 .with_help("add F (1/minutes for this block) or switch to G94"),
             );
             return None;
-        }
-        if let Some(w) = param('R').filter(|_| !matches!(kind, MotionKind::Arc(_))) {
-            let _ = w;
         }
         let mut extra_text = String::new();
         for (i, w) in extra.iter().enumerate() {
