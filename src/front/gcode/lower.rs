@@ -1502,6 +1502,31 @@ impl Lowerer {
             MotionMode::Linear => MotionKind::Linear,
             MotionMode::Arc { clockwise } => {
                 let (u, v, _) = self.plane.axes();
+                // An arc without its centre (or with two) is wrong wherever it starts.
+                let letters = plane_offset_letters(self.plane);
+                let has_offsets = param(letters.0).is_some() || param(letters.1).is_some();
+                if has_offsets == param('R').is_some() {
+                    let msg = if has_offsets {
+                        "arc has both a radius (R) and centre offsets"
+                    } else {
+                        "arc has neither a radius (R) nor centre offsets"
+                    };
+                    let help = if has_offsets {
+                        "give either R or the centre offsets, not both".to_string()
+                    } else {
+                        format!(
+                            "add {} and {} (centre relative to the start) or R",
+                            letters.0, letters.1
+                        )
+                    };
+                    diags.push(
+                        Diagnostic::error("gcode::arc", msg)
+                            .at_bytes(line_no, text, 0, text.len())
+                            .with_label("this arc")
+                            .with_help(help),
+                    );
+                    return None;
+                }
                 if start.get(u).is_none() || start.get(v).is_none() {
                     diags.push(
                         Diagnostic::warning("gcode::arc-unknown-start", "arc starts from a position that is not known here")
@@ -1569,23 +1594,8 @@ impl Lowerer {
                 }
                 let unit = if self.inch { MM_PER_INCH } else { 1.0 };
                 let centre2 = match (off_u.is_some() || off_v.is_some(), r) {
-                    (true, Some(_)) => {
-                        diags.push(arc_err(
-                            "arc has both a radius (R) and centre offsets".into(),
-                            "give either R or the centre offsets, not both",
-                        ));
-                        return None;
-                    }
-                    (false, None) => {
-                        diags.push(arc_err(
-                            "arc has neither a radius (R) nor centre offsets".into(),
-                            &format!(
-                                "add {} and {} (centre relative to the start) or R",
-                                offset_letters.0, offset_letters.1
-                            ),
-                        ));
-                        return None;
-                    }
+                    // Checked above: exactly one of the two forms.
+                    (true, Some(_)) | (false, None) => return None,
                     (true, None) => {
                         let du = off_u.map_or(0.0, |w| w.value * unit);
                         let dv = off_v.map_or(0.0, |w| w.value * unit);
