@@ -2040,6 +2040,13 @@ mod tests {
     use super::parse_decimal;
 
     #[test]
+    fn arc_without_centre_is_an_error_from_an_unknown_start() {
+        let diags = crate::front::gcode::parse_str("G2 X1\n", &Default::default()).unwrap_err();
+        assert_eq!(diags.len(), 1, "{diags:?}");
+        assert_eq!(diags[0].code, "gcode::arc");
+    }
+
+    #[test]
     fn decimal_fast_path_matches_std() {
         for s in [
             "0",
