@@ -1092,13 +1092,17 @@ impl Lowerer {
         } else if let Some(m) = motion_here {
             self.motion = m;
         }
-        let m_list: Small<Code> = m_codes.iter().map(|(c, _)| *c).collect();
+        // Per-line lists are filled in place: collecting a SmallVec moves (copies) it.
+        let mut m_list: Small<Code> = Small::new();
+        m_list.extend(m_codes.iter().map(|(c, _)| *c));
         // M82/M83 are resolved here; the backend puts its own extruder mode before E moves.
-        let passthrough_m: Small<Word<'_>> = m_codes
-            .iter()
-            .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
-            .map(|(_, w)| *w)
-            .collect();
+        let mut passthrough_m: Small<Word<'_>> = Small::new();
+        passthrough_m.extend(
+            m_codes
+                .iter()
+                .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
+                .map(|(_, w)| *w),
+        );
         // F applies to this block and after; in G93 it is per block.
         let mut feed_written = false;
         if let Some(f) = slots.get('F')
@@ -1130,13 +1134,16 @@ impl Lowerer {
         let first = out.len();
         let blocks = &mut *out;
         // Pass-through command words (everything the IR does not model).
-        let command_words: Small<Word<'_>> = {
-            let mut v: Small<Word<'_>> = other_g
-                .iter()
-                .chain(passthrough_m.iter())
-                .chain(rest.iter())
-                .copied()
-                .collect();
+        let mut command_words: Small<Word<'_>> = Small::new();
+        {
+            let v = &mut command_words;
+            v.extend(
+                other_g
+                    .iter()
+                    .chain(passthrough_m.iter())
+                    .chain(rest.iter())
+                    .copied(),
+            );
             let arc_here = matches!(motion_here, Some(MotionMode::Arc { .. }))
                 && ['I', 'J', 'K', 'R'].iter().any(|l| slots.get(*l).is_some());
             let becomes_motion =
@@ -1150,8 +1157,7 @@ impl Lowerer {
                 }
             }
             v.sort_by_key(|w| w.start);
-            v
-        };
+        }
 
         if let Some(code) = offset_code {
             let declared = self.apply_offset(code, &slots, named, line_no, text, diags);
@@ -1259,7 +1265,8 @@ impl Lowerer {
                 }
                 mode => {
                     // Words other than the move's (M, T, S, unknown letters) ride along on its line.
-                    let extra: Small<&str> = command_words.iter().map(|w| w.text).collect();
+                    let mut extra: Small<&str> = Small::new();
+                    extra.extend(command_words.iter().map(|w| w.text));
                     match self.motion_block(
                         text,
                         span,
