@@ -710,16 +710,23 @@ impl Lowerer {
     }
 
     /// Lowers a plain block.
-    /// The words, bare letters and comments of a parsed line, after the checks that need
-    /// no modal state (checksum, number range, exponent typos, unterminated comments);
-    /// `None` once an error is reported.
+    /// Puts the words, bare letters and comments of a parsed line `into` the caller's
+    /// lists, after the checks that need no modal state (checksum, number range, exponent
+    /// typos, unterminated comments). Returns whether the line holds a `%`; `None` once an
+    /// error is reported.
     fn collect<'a>(
         text: &'a str,
         line_no: u32,
         line: &Line,
         items: &[Item],
+        into: Collected<'_, 'a>,
         diags: &mut Vec<Diagnostic>,
-    ) -> Option<Collected<'a>> {
+    ) -> Option<bool> {
+        let Collected {
+            words,
+            bare,
+            comments,
+        } = into;
         let err = |code: &'static str, msg: String, s: usize, e: usize| {
             Diagnostic::error(code, msg).at_bytes(line_no, text, s, e)
         };
@@ -748,9 +755,6 @@ impl Lowerer {
             }
         }
 
-        let mut comments = Vec::new();
-        let mut words: Small<Word<'_>> = Small::new();
-        let mut bare: Small<(usize, &str)> = Small::new();
         let mut percent = false;
         for item in items {
             match *item {
@@ -853,12 +857,7 @@ impl Lowerer {
             }
         }
 
-        Some(Collected {
-            words,
-            bare,
-            comments,
-            percent,
-        })
+        Some(percent)
     }
 
     fn block(
@@ -875,13 +874,22 @@ impl Lowerer {
             Diagnostic::error(code, msg).at_bytes(line_no, text, s, e)
         };
 
-        let Some(Collected {
-            words,
-            bare,
-            comments,
-            percent,
-        }) = Self::collect(text, line_no, &line, items, diags)
-        else {
+        // Filled in place (a returned SmallVec would be copied).
+        let mut words: Small<Word<'_>> = Small::new();
+        let mut bare: Small<(usize, &str)> = Small::new();
+        let mut comments = Vec::new();
+        let Some(percent) = Self::collect(
+            text,
+            line_no,
+            &line,
+            items,
+            Collected {
+                words: &mut words,
+                bare: &mut bare,
+                comments: &mut comments,
+            },
+            diags,
+        ) else {
             return;
         };
         if percent {
@@ -1761,12 +1769,11 @@ impl Lowerer {
     }
 }
 
-/// What [`Lowerer::collect`] takes from a parsed line.
-struct Collected<'a> {
-    words: Small<Word<'a>>,
-    bare: Small<(usize, &'a str)>,
-    comments: Vec<Comment>,
-    percent: bool,
+/// Where [`Lowerer::collect`] puts what it takes from a parsed line.
+struct Collected<'b, 'a> {
+    words: &'b mut Small<Word<'a>>,
+    bare: &'b mut Small<(usize, &'a str)>,
+    comments: &'b mut Vec<Comment>,
 }
 
 /// Where a verbatim line stands.
