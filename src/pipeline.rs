@@ -187,12 +187,14 @@ impl Pipeline {
                         Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
                     };
                     let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
-                        for b in blocks.drain(..) {
+                        // By reference, then cleared: moving each block out would copy it.
+                        for b in blocks.iter() {
                             written += 1;
-                            if let Err(d) = backend.write_block(&b, diags) {
+                            if let Err(d) = backend.write_block(b, diags) {
                                 diags.push(d);
                             }
                         }
+                        blocks.clear();
                     };
                     let mut next = Vec::with_capacity(BATCH);
                     for mut batch in rx {
@@ -269,11 +271,12 @@ impl Pipeline {
         let mut summary = Summary::default();
         let mut diags = Vec::new();
         let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
-            for b in blocks.drain(..) {
-                if let Err(d) = back.write_block(&b, diags) {
+            for b in blocks.iter() {
+                if let Err(d) = back.write_block(b, diags) {
                     diags.push(d);
                 }
             }
+            blocks.clear();
         };
         let mut cur = Vec::new();
         let mut next = Vec::new();

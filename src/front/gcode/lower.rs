@@ -1275,7 +1275,7 @@ impl Lowerer {
                     // Words other than the move's (M, T, S, unknown letters) ride along on its line.
                     let mut extra: Small<&str> = Small::new();
                     extra.extend(command_words.iter().map(|w| w.text));
-                    match self.motion_block(
+                    let moved = self.motion_block(
                         text,
                         span,
                         mode,
@@ -1283,11 +1283,12 @@ impl Lowerer {
                         named,
                         machine_frame,
                         feed_written,
-                        extra,
+                        &extra,
+                        blocks,
                         diags,
-                    ) {
-                        Some(b) => blocks.push(b),
-                        None => return,
+                    );
+                    if moved.is_none() {
+                        return;
                     }
                 }
             }
@@ -1453,9 +1454,10 @@ impl Lowerer {
         named: AxisSet,
         machine_frame: bool,
         feed_written: bool,
-        extra: Small<&str>,
+        extra: &[&str],
+        out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
-    ) -> Option<Block> {
+    ) -> Option<()> {
         let line_no = span.line;
         let param = |l: char| slots.get(l);
         let start = self.pos;
@@ -1485,13 +1487,15 @@ impl Lowerer {
                     a.letter()
                 )),
             );
-            return Some(self.verbatim(
+            let b = self.verbatim(
                 text,
                 span,
                 VerbatimReason::Unevaluated,
                 named,
                 Placement::TopLevel { keeps_modes: true },
-            ));
+            );
+            out.push(b);
+            return Some(());
         }
         let mut target = self.pos;
         for a in named.iter() {
@@ -1553,13 +1557,15 @@ impl Lowerer {
                                 v.letter()
                             )),
                     );
-                    return Some(self.verbatim(
+                    let b = self.verbatim(
                         text,
                         span,
                         VerbatimReason::Unevaluated,
                         AxisSet::ALL,
                         Placement::TopLevel { keeps_modes: true },
-                    ));
+                    );
+                    out.push(b);
+                    return Some(());
                 }
                 let start = self.pos;
                 let s2 = [start.values[u.index()], start.values[v.index()]];
@@ -1765,7 +1771,9 @@ impl Lowerer {
         if machine_frame {
             self.pos.forget(named);
         }
-        Some(Block::new(span, BlockKind::Motion(motion)))
+        // Pushed here rather than returned: a returned block is one more copy per line.
+        out.push(Block::new(span, BlockKind::Motion(motion)));
+        Some(())
     }
 }
 
