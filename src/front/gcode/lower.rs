@@ -90,6 +90,17 @@ struct Slots<'w, 'a> {
 impl<'w, 'a> Slots<'w, 'a> {
     const NONE: u32 = u32::MAX;
 
+    /// Whether the block has a word with `letter` (upper case).
+    fn has(&self, letter: char) -> bool {
+        let slot = (letter as u8).wrapping_sub(b'A') as usize;
+        self.index.get(slot).is_some_and(|&i| i != Self::NONE)
+    }
+
+    /// Whether the block has a centre word (I, J, K or R).
+    fn has_centre(&self) -> bool {
+        ['I', 'J', 'K', 'R'].into_iter().any(|l| self.has(l))
+    }
+
     /// The word with `letter` (upper case), if the block has one.
     fn get(&self, letter: char) -> Option<Word<'a>> {
         let slot = (letter as u8).wrapping_sub(b'A') as usize;
@@ -1019,7 +1030,7 @@ impl Lowerer {
         }
         let named: AxisSet = Axis::ALL
             .into_iter()
-            .filter(|a| slots.axis(*a).is_some())
+            .filter(|a| slots.has(a.letter()))
             .collect();
 
         // Modal settings, in RS274 execution order.
@@ -1152,8 +1163,8 @@ impl Lowerer {
                     .chain(rest.iter())
                     .copied(),
             );
-            let arc_here = matches!(motion_here, Some(MotionMode::Arc { .. }))
-                && ['I', 'J', 'K', 'R'].iter().any(|l| slots.get(*l).is_some());
+            let arc_here =
+                matches!(motion_here, Some(MotionMode::Arc { .. })) && slots.has_centre();
             let becomes_motion =
                 !axis_user && offset_code.is_none() && (!named.is_empty() || arc_here);
             if !dwell && !becomes_motion {
@@ -1230,8 +1241,7 @@ impl Lowerer {
             blocks.push(cmd);
         } else if !named.is_empty()
             || (motion_here.is_some() && !bare.is_empty())
-            || (matches!(motion_here, Some(MotionMode::Arc { .. }))
-                && ['I', 'J', 'K', 'R'].iter().any(|l| slots.get(*l).is_some()))
+            || (matches!(motion_here, Some(MotionMode::Arc { .. })) && slots.has_centre())
         {
             if let Some(&(s, l)) = bare.first() {
                 diags.push(letter_error(line_no, text, s, l));
@@ -1523,8 +1533,8 @@ impl Lowerer {
                 let (u, v, _) = self.plane.axes();
                 // An arc without its centre (or with two) is wrong wherever it starts.
                 let letters = plane_offset_letters(self.plane);
-                let has_offsets = param(letters.0).is_some() || param(letters.1).is_some();
-                if has_offsets == param('R').is_some() {
+                let has_offsets = slots.has(letters.0) || slots.has(letters.1);
+                if has_offsets == slots.has('R') {
                     let msg = if has_offsets {
                         "arc has both a radius (R) and centre offsets"
                     } else {
