@@ -903,6 +903,13 @@ impl Lowerer {
         ) else {
             return;
         };
+        if !percent
+            && !line.block_delete
+            && bare.is_empty()
+            && self.plain_move(text, span, &words, &mut comments, out, diags)
+        {
+            return;
+        }
         if percent {
             if !words.is_empty() {
                 diags.push(err(
@@ -1338,6 +1345,86 @@ impl Lowerer {
         if !matches!(out[first].kind, BlockKind::Verbatim(_)) {
             out[first].comments = comments;
         }
+    }
+
+    /// The common case, classified cheaply: a G0/G1 move (written or modal) whose words
+    /// are only axes, F and N, each once. Lowered by [`Lowerer::motion_block`] like any
+    /// move; returns `false`, having changed nothing, for any other line, which then takes
+    /// the general path (with its diagnostics).
+    fn plain_move(
+        &mut self,
+        text: &str,
+        span: Span,
+        words: &[Word<'_>],
+        comments: &mut Vec<Comment>,
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) -> bool {
+        let mut index = [Slots::NONE; 26];
+        let mut mode = None;
+        let mut named = AxisSet::EMPTY;
+        for (i, w) in words.iter().enumerate() {
+            match w.letter {
+                'N' => {}
+                'G' => match (mode, parse_code(w.number())) {
+                    (None, Some((0, 0))) => mode = Some(MotionMode::Rapid),
+                    (None, Some((1, 0))) => mode = Some(MotionMode::Linear),
+                    _ => return false,
+                },
+                l => {
+                    let axis = Axis::from_letter(l);
+                    if axis.is_none() && l != 'F' {
+                        return false;
+                    }
+                    let slot = &mut index[(l as u8 - b'A') as usize];
+                    if *slot != Slots::NONE {
+                        return false;
+                    }
+                    *slot = i as u32;
+                    if let Some(a) = axis {
+                        named.insert(a);
+                    }
+                }
+            }
+        }
+        let mode = mode.unwrap_or(self.motion);
+        if named.is_empty()
+            || !matches!(mode, MotionMode::Rapid | MotionMode::Linear)
+            || self.feed_mode == FeedMode::InverseTime
+        {
+            return false;
+        }
+        let slots = Slots { words, index };
+        let feed = slots.get('F');
+        if feed.is_some_and(|f| f.value < 0.0) {
+            return false;
+        }
+        // From here on the line is lowered exactly as the general path would.
+        self.motion = mode;
+        if let Some(f) = feed {
+            let scale = if self.inch { MM_PER_INCH } else { 1.0 };
+            self.feed = Some(f.value * scale);
+        }
+        let first = out.len();
+        let lowered = self.motion_block(
+            text,
+            span,
+            mode,
+            &slots,
+            named,
+            false,
+            feed.is_some(),
+            &[],
+            out,
+            diags,
+        );
+        if lowered.is_some() && out.len() > first {
+            self.program_started = true;
+            if !matches!(out[first].kind, BlockKind::Verbatim(_)) {
+                out[first].comments = std::mem::take(comments);
+            }
+        }
+        true
     }
 
     /// Applies a G92-family code to the offsets and returns the values G92 declares.
