@@ -1949,20 +1949,17 @@ pub fn parse_decimal(s: &str) -> Option<f64> {
 }
 
 /// Letter (upper case) and number (without blanks) of a word token.
-fn split_word(w: &str) -> (char, std::borrow::Cow<'_, str>) {
-    let letter = w.chars().next().unwrap_or(' ');
-    let number = &w[letter.len_utf8()..];
-    let number = if number.bytes().any(|b| b == b' ' || b == b'\t') {
-        std::borrow::Cow::Owned(number.chars().filter(|c| !c.is_whitespace()).collect())
-    } else {
-        std::borrow::Cow::Borrowed(number)
-    };
-    (letter.to_ascii_uppercase(), number)
+///
+/// The lexer's word pattern allows blanks only between the letter and the number
+/// (`G 1`), so the number is one slice.
+fn split_word(w: &str) -> (char, &str) {
+    let letter = w.as_bytes().first().copied().unwrap_or(b' ');
+    (letter.to_ascii_uppercase() as char, number_slice(w))
 }
 
-/// The number part of a word, as a slice (blanks inside are rare; they are kept).
+/// The number part of a word token.
 fn number_slice(w: &str) -> &str {
-    w[1..].trim_start()
+    w.get(1..).unwrap_or("").trim_start_matches([' ', '\t'])
 }
 
 fn normalise_word(w: &str) -> String {
