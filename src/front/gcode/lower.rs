@@ -677,7 +677,7 @@ impl Lowerer {
         for t in toks {
             if let Tok::Word(w) = t.1 {
                 let (letter, number) = split_word(w);
-                let Some(code) = parse_code(&number) else {
+                let Some(code) = parse_code(number) else {
                     continue;
                 };
                 match (letter, code) {
@@ -707,8 +707,8 @@ impl Lowerer {
             if let Tok::Word(w) | Tok::Letter(w) = t.1 {
                 let (letter, number) = split_word(w);
                 match letter {
-                    'G' => g.extend(parse_code(&number)),
-                    'M' => m.extend(parse_code(&number)),
+                    'G' => g.extend(parse_code(number)),
+                    'M' => m.extend(parse_code(number)),
                     l => {
                         if let Some(a) = Axis::from_letter(l) {
                             named.insert(a);
@@ -772,7 +772,7 @@ impl Lowerer {
                 Item::Word(s, e) => {
                     let w = &text[s..e];
                     let (letter, number) = split_word(w);
-                    let value = parse_decimal(&number).unwrap_or(f64::NAN);
+                    let value = parse_decimal(number).unwrap_or(f64::NAN);
                     if !value.is_finite() || value.abs() > 1e12 {
                         diags.push(
                             err(
@@ -1966,7 +1966,7 @@ fn normalise_word(w: &str) -> String {
     let (letter, number) = split_word(w);
     let mut s = String::with_capacity(w.len());
     s.push(letter);
-    s.push_str(&number);
+    s.push_str(number);
     s
 }
 
@@ -1990,7 +1990,7 @@ fn uses_plane(text: &str) -> bool {
     toks.iter().any(|t| match t.1 {
         Tok::Word(w) => {
             let (l, n) = split_word(w);
-            l == 'G' && matches!(parse_code(&n), Some((2 | 3 | 73 | 76 | 81..=89, 0)))
+            l == 'G' && matches!(parse_code(n), Some((2 | 3 | 73 | 76 | 81..=89, 0)))
         }
         _ => false,
     })
@@ -2010,7 +2010,7 @@ fn contains_m99(text: &str) -> bool {
     toks.iter().any(|t| match t.1 {
         Tok::Word(w) => {
             let (l, n) = split_word(w);
-            l == 'M' && parse_code(&n) == Some((99, 0))
+            l == 'M' && parse_code(n) == Some((99, 0))
         }
         _ => false,
     })
