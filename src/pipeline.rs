@@ -187,13 +187,8 @@ impl Pipeline {
                         Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
                     };
                     let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
-                        // By reference, then cleared: moving each block out would copy it.
-                        for b in blocks.iter() {
-                            written += 1;
-                            if let Err(d) = backend.write_block(b, diags) {
-                                diags.push(d);
-                            }
-                        }
+                        written += blocks.len() as u64;
+                        back::write_each(backend.as_mut(), blocks, diags);
                         blocks.clear();
                     };
                     let mut next = Vec::with_capacity(BATCH);
@@ -270,12 +265,10 @@ impl Pipeline {
     ) -> Summary {
         let mut summary = Summary::default();
         let mut diags = Vec::new();
+        let mut written = 0u64;
         let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
-            for b in blocks.iter() {
-                if let Err(d) = back.write_block(b, diags) {
-                    diags.push(d);
-                }
-            }
+            written += blocks.len() as u64;
+            back::write_each(back, blocks, diags);
             blocks.clear();
         };
         let mut cur = Vec::new();
@@ -283,7 +276,6 @@ impl Pipeline {
         let mut counter = 0u64;
         while let Some(block) = front.next_block(&mut diags) {
             summary.blocks_in += 1;
-            summary.blocks_out += 1;
             cur.push(block);
             self.stages
                 .flow(0, &mut cur, &mut next, &mut diags, &mut deliver);
@@ -299,6 +291,7 @@ impl Pipeline {
             }
         }
         self.stages.finish(&mut diags, &mut deliver);
+        summary.blocks_out = written;
         if let Err(d) = back.finish() {
             diags.push(d);
         }

@@ -89,7 +89,7 @@ fn fixture_report(file: &str) -> String {
     while let Some(b) = parser.next_block(&mut diags) {
         blocks.push(b);
     }
-    let mut verifier = Verifier::default();
+    let mut verifier = Verifier;
     for b in &blocks {
         if let Err(e) = verifier.check(b) {
             panic!("{file}:{}: IR invariant broken: {e}", b.span.line);
@@ -523,18 +523,48 @@ fn nth_line(text: &str, line: u32) -> &str {
         .unwrap_or("")
 }
 
+/// A corpus file whose compiled output reads back without errors, with both read into IR.
+/// Files that fail to compile or to read back are reported by their own tests.
+struct Reread {
+    file: &'static Checked,
+    src: &'static str,
+    out: &'static str,
+    input: ncpost::front::gcode::Program,
+    output: ncpost::front::gcode::Program,
+}
+
+fn reread() -> impl Iterator<Item = Reread> {
+    let options = preset().gcode_input;
+    corpus().iter().filter_map(move |file| {
+        let (Ok(src), Ok(out)) = (&file.input, &file.output) else {
+            return None;
+        };
+        let output = parse_str(out, &options).ok()?;
+        let input = parse_str(src, &options).expect("input parsed before");
+        Some(Reread {
+            file,
+            src,
+            out,
+            input,
+            output,
+        })
+    })
+}
+
 #[test]
 fn corpus_output_moves_through_the_same_positions() {
     const SHOWN: usize = 6;
-    let options = preset().gcode_input;
     let mut failures = Vec::new();
     let mut skipped = Vec::new();
     let mut compared = 0;
-    for c in corpus() {
-        let (Ok(src), Ok(out)) = (&c.input, &c.output) else {
-            continue; // reported by corpus_compiles_with_emit_gcode
-        };
-        let input = parse_str(src, &options).expect("input parsed before");
+    for Reread {
+        file: c,
+        src,
+        out,
+        input,
+        output,
+    } in reread()
+    {
         let codes: BTreeSet<&str> = input
             .diagnostics
             .iter()
@@ -545,9 +575,6 @@ fn corpus_output_moves_through_the_same_positions() {
             skipped.push(format!("{} ({})", c.name, Vec::from_iter(codes).join(", ")));
             continue;
         }
-        let Ok(output) = parse_str(out, &options) else {
-            continue; // reported by corpus_output_reparses_without_errors
-        };
         compared += 1;
         let (a, b) = (moves(&input.blocks), moves(&output.blocks));
         let mut lines = Vec::new();
@@ -624,16 +651,15 @@ fn comments(blocks: &[Block]) -> Vec<(u32, String)> {
 
 #[test]
 fn corpus_output_keeps_every_comment() {
-    let options = preset().gcode_input;
     let mut failures = Vec::new();
-    for c in corpus() {
-        let (Ok(src), Ok(out)) = (&c.input, &c.output) else {
-            continue;
-        };
-        let Ok(output) = parse_str(out, &options) else {
-            continue;
-        };
-        let input = parse_str(src, &options).expect("input parsed before");
+    for Reread {
+        file: c,
+        src,
+        out,
+        input,
+        output,
+    } in reread()
+    {
         let (a, b) = (comments(&input.blocks), comments(&output.blocks));
         if a.len() != b.len() {
             // Comments may change style (`( )` to `;`), so compare the text only where
@@ -737,20 +763,19 @@ fn dwells(blocks: &[Block]) -> Vec<(u32, f64)> {
 }
 
 /// The emitted dwells last as long as the input's when ncpost reads its own output back
-/// (seconds are printed with 3 decimals).
+/// (milliseconds are printed with 3 decimals).
 #[test]
 fn corpus_output_keeps_dwell_times() {
     const SHOWN: usize = 4;
-    let options = preset().gcode_input;
     let mut failures = Vec::new();
-    for c in corpus() {
-        let (Ok(src), Ok(out)) = (&c.input, &c.output) else {
-            continue;
-        };
-        let Ok(output) = parse_str(out, &options) else {
-            continue;
-        };
-        let input = parse_str(src, &options).expect("input parsed before");
+    for Reread {
+        file: c,
+        src,
+        out,
+        input,
+        output,
+    } in reread()
+    {
         let (a, b) = (dwells(&input.blocks), dwells(&output.blocks));
         let mut problems = Vec::new();
         if a.len() != b.len() {

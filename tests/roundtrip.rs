@@ -197,7 +197,7 @@ fn roundtrip(src: &str, backend: &Backend) -> Result<(), String> {
 }
 
 fn verify(blocks: &[Block]) -> Result<(), String> {
-    let mut v = Verifier::default();
+    let mut v = Verifier;
     for b in blocks {
         v.check(b)
             .map_err(|e| format!("line {}: {e}: {b:?}", b.span.line))?;

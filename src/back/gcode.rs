@@ -70,7 +70,6 @@ impl<W: Write> Writer<W> {
             modal_motion: options.modal_motion,
             extrusion: options.extrusion,
             dwell_milliseconds: options.dwell_milliseconds,
-            dwell_letter: 'P',
         };
         Writer(Emitter::new(out, Flavor::Plain, fmt))
     }

@@ -104,7 +104,6 @@ pub(crate) struct Format {
     pub modal_motion: bool,
     pub extrusion: Extrusion,
     pub dwell_milliseconds: bool,
-    pub dwell_letter: char,
 }
 
 /// Which controller the text is for.
@@ -701,7 +700,9 @@ impl<W: Write> Emitter<W> {
                 self.text(plane.gcode());
                 self.modes.plane = Some(plane);
             }
-            if self.modes.e_relative != Some(m.relative_e) && moves_e(&v.text) {
+            if self.modes.e_relative != Some(m.relative_e)
+                && crate::front::gcode::lexer::has_word(&v.text, 'E')
+            {
                 self.text(if m.relative_e { "M83" } else { "M82" });
                 self.modes.e_relative = Some(m.relative_e);
             }
@@ -737,7 +738,7 @@ impl<W: Write> Emitter<W> {
             BlockKind::Motion(m) => self.motion(block, m),
             BlockKind::Dwell { seconds } => {
                 self.text("G4");
-                let letter = self.fmt.dwell_letter;
+                let letter = 'P';
                 if self.fmt.dwell_milliseconds {
                     self.word(letter, seconds * 1000.0, 3, block)?;
                 } else {
@@ -755,15 +756,6 @@ impl<W: Write> Emitter<W> {
     pub(crate) fn flush(&mut self) -> Result<(), Diagnostic> {
         self.out.flush().map_err(io_error)
     }
-}
-
-/// Whether a line has an E word with a number.
-fn moves_e(text: &str) -> bool {
-    let mut toks = Vec::new();
-    crate::front::gcode::lexer::lex_line(text, &mut toks);
-    toks.iter().any(
-        |t| matches!(t.1, crate::front::gcode::lexer::Tok::Word(w) if w.starts_with(['E', 'e'])),
-    )
 }
 
 /// Whether a command has an axis word with a number (`G28 X0`), whose meaning depends on
@@ -837,15 +829,20 @@ use writer_backend;
 /// ```
 pub fn write_blocks(backend: &mut dyn Backend, blocks: &[Block]) -> Vec<Diagnostic> {
     let mut diags = Vec::new();
-    for b in blocks {
-        if let Err(d) = backend.write_block(b, &mut diags) {
-            diags.push(d);
-        }
-    }
+    write_each(backend, blocks, &mut diags);
     if let Err(d) = backend.finish() {
         diags.push(d);
     }
     diags
+}
+
+/// Writes each block (without finishing), adding the backend's diagnostics to `diags`.
+pub(crate) fn write_each(backend: &mut dyn Backend, blocks: &[Block], diags: &mut Vec<Diagnostic>) {
+    for b in blocks {
+        if let Err(d) = backend.write_block(b, diags) {
+            diags.push(d);
+        }
+    }
 }
 
 /// Like [`write_blocks`], but `Err` with every diagnostic when any is an error.

@@ -96,7 +96,6 @@ impl<W: Write> Writer<W> {
             extrusion: options.extrusion,
             // `G4 P` in milliseconds keeps the number of the (Fanuc/Marlin/RRF) source.
             dwell_milliseconds: true,
-            dwell_letter: 'P',
         };
         let flavor = Flavor::Rrf {
             inverse_time: options.inverse_time,

@@ -9,18 +9,15 @@ use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
 /// use ncpost::front::gcode::{parse_str, Options};
 /// use ncpost::ir::verify::Verifier;
 /// let p = parse_str("G0 X0 Y0\nG2 X10 Y0 I5 J0 F100\n", &Options::default()).unwrap();
-/// let mut v = Verifier::default();
+/// let mut v = Verifier;
 /// assert!(p.blocks.iter().all(|b| v.check(b).is_ok()));
 /// ```
 #[derive(Debug, Default, Clone)]
-pub struct Verifier {
-    blocks: u64,
-}
+pub struct Verifier;
 
 impl Verifier {
     /// Checks one block; `Err` names the broken invariant.
     pub fn check(&mut self, block: &Block) -> Result<(), String> {
-        self.blocks += 1;
         if block.span.line == 0 {
             return Err("block has no source line (invariant 1)".into());
         }
@@ -83,11 +80,6 @@ impl Verifier {
             }
         }
         Ok(())
-    }
-
-    /// Blocks checked so far.
-    pub fn checked(&self) -> u64 {
-        self.blocks
     }
 }
 

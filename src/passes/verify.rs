@@ -23,9 +23,7 @@ pub const INFO: PassInfo = PassInfo {
     summary: "check the IR invariants (spans, finite numbers, known axes, unit tool axes)",
     build: |t| {
         let _: Options = super::options(t)?;
-        Ok(Box::new(Verify {
-            verifier: Verifier::default(),
-        }))
+        Ok(Box::new(Verify { verifier: Verifier }))
     },
     defaults: || super::to_toml(&Options::default()),
 };

@@ -92,6 +92,19 @@ pub fn tokens(line: &str) -> impl Iterator<Item = Spanned<'_>> {
     })
 }
 
+/// Whether `line` has a word (letter with a number) for `letter`, either case.
+///
+/// ```
+/// use ncpost::front::gcode::lexer::has_word;
+/// assert!(has_word("G1 X1 e0.5", 'E'));
+/// assert!(!has_word("G1 X1 (E5)", 'E'));
+/// ```
+pub fn has_word(line: &str, letter: char) -> bool {
+    tokens(line).any(
+        |t| matches!(t.1, Tok::Word(w) if w.as_bytes()[0].eq_ignore_ascii_case(&(letter as u8))),
+    )
+}
+
 /// Length up to and including the `)` that closes an already opened comment.
 fn closing_paren(rest: &str) -> Option<usize> {
     let mut depth = 1usize;

@@ -273,7 +273,7 @@ impl Lowerer {
             Placement::TopLevel { keeps_modes } => {
                 // The extruder mode matters only to a line that moves E.
                 let mut modes = self.modes();
-                modes.relative_e &= mentions_e(text);
+                modes.relative_e &= super::lexer::has_word(text, 'E');
                 if matches!(
                     self.motion,
                     MotionMode::Arc { .. } | MotionMode::Unsupported
@@ -295,6 +295,12 @@ impl Lowerer {
                 keeps_modes,
             }),
         )
+    }
+
+    /// A line copied as written inside a construct (control flow, subprogram body) that
+    /// may move anything.
+    fn pass_through(&mut self, text: &str, span: Span, reason: VerbatimReason) -> Block {
+        self.verbatim(text, span, reason, AxisSet::ALL, Placement::Inside)
     }
 
     fn modes(&self) -> WrittenModes {
@@ -354,25 +360,13 @@ impl Lowerer {
         // A RepRapFirmware meta block: its body is the lines indented deeper.
         if let Some(k) = self.meta_indent {
             if indent > k {
-                out.push(self.verbatim(
-                    text,
-                    span,
-                    VerbatimReason::ControlFlow,
-                    AxisSet::ALL,
-                    Placement::Inside,
-                ));
+                out.push(self.pass_through(text, span, VerbatimReason::ControlFlow));
                 return;
             }
             self.meta_indent = None;
         }
         if self.in_subprogram {
-            out.push(self.verbatim(
-                text,
-                span,
-                VerbatimReason::Subprogram,
-                AxisSet::ALL,
-                Placement::Inside,
-            ));
+            out.push(self.pass_through(text, span, VerbatimReason::Subprogram));
             if contains_m99(text) {
                 self.in_subprogram = false;
             }
@@ -399,13 +393,7 @@ impl Lowerer {
                          positions after it are treated as unknown",
                     ),
                 );
-                out.push(self.verbatim(
-                    text,
-                    span,
-                    VerbatimReason::ControlFlow,
-                    AxisSet::ALL,
-                    Placement::Inside,
-                ));
+                out.push(self.pass_through(text, span, VerbatimReason::ControlFlow));
                 return;
             }
         }
@@ -415,13 +403,7 @@ impl Lowerer {
             return;
         }
         if !self.oword_stack.is_empty() {
-            out.push(self.verbatim(
-                text,
-                span,
-                VerbatimReason::ControlFlow,
-                AxisSet::ALL,
-                Placement::Inside,
-            ));
+            out.push(self.pass_through(text, span, VerbatimReason::ControlFlow));
             return;
         }
 
@@ -445,13 +427,7 @@ impl Lowerer {
                         "the expand-subprograms pass inlines M98 calls when it is available",
                     ),
                 );
-                out.push(self.verbatim(
-                    text,
-                    span,
-                    VerbatimReason::Subprogram,
-                    AxisSet::ALL,
-                    Placement::Inside,
-                ));
+                out.push(self.pass_through(text, span, VerbatimReason::Subprogram));
             } else {
                 out.push(self.verbatim(
                     text,
@@ -1147,12 +1123,7 @@ impl Lowerer {
                 );
                 return;
             }
-            let scale = if self.inch && self.feed_mode != FeedMode::InverseTime {
-                MM_PER_INCH
-            } else {
-                1.0
-            };
-            self.feed = Some(f.value * scale);
+            self.feed = Some(f.value * self.feed_scale());
             feed_written = true;
         }
 
@@ -1402,8 +1373,7 @@ impl Lowerer {
         // From here on the line is lowered exactly as the general path would.
         self.motion = mode;
         if let Some(f) = feed {
-            let scale = if self.inch { MM_PER_INCH } else { 1.0 };
-            self.feed = Some(f.value * scale);
+            self.feed = Some(f.value * self.feed_scale());
         }
         let first = out.len();
         let lowered = self.motion_block(
@@ -1494,6 +1464,15 @@ impl Lowerer {
             _ => return None,
         };
         (seconds >= 0.0).then_some(seconds)
+    }
+
+    /// Millimetres per unit of F: inches per minute convert, inverse time does not.
+    fn feed_scale(&self) -> f64 {
+        if self.inch && self.feed_mode != FeedMode::InverseTime {
+            MM_PER_INCH
+        } else {
+            1.0
+        }
     }
 
     fn unit(&self, axis: Axis) -> f64 {
@@ -1994,14 +1973,6 @@ fn uses_plane(text: &str) -> bool {
         }
         _ => false,
     })
-}
-
-/// Whether a line has an E word with a number.
-fn mentions_e(text: &str) -> bool {
-    let mut toks = Vec::new();
-    lex_line(text, &mut toks);
-    toks.iter()
-        .any(|t| matches!(t.1, Tok::Word(w) if w.starts_with(['E', 'e'])))
 }
 
 fn contains_m99(text: &str) -> bool {
