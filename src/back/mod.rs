@@ -639,13 +639,13 @@ impl<W: Write> Emitter<W> {
                 }
             }
         }
-        if has_axis_word(text) && text.starts_with(['G', 'g']) {
-            let metric = !cmd.modes.inch;
+        if let Some(modes) = cmd.modes {
+            let metric = !modes.inch;
             if self.modes.metric != Some(metric) {
                 self.text(if metric { "G21" } else { "G20" });
                 self.modes.metric = Some(metric);
             }
-            let absolute = !cmd.modes.relative;
+            let absolute = !modes.relative;
             if self.modes.absolute != Some(absolute) {
                 self.text(if absolute { "G90" } else { "G91" });
                 self.modes.absolute = Some(absolute);
@@ -756,16 +756,6 @@ impl<W: Write> Emitter<W> {
     pub(crate) fn flush(&mut self) -> Result<(), Diagnostic> {
         self.out.flush().map_err(io_error)
     }
-}
-
-/// Whether a command has an axis word with a number (`G28 X0`), whose meaning depends on
-/// the units and distance mode.
-fn has_axis_word(text: &str) -> bool {
-    text.split_whitespace().any(|w| {
-        let mut chars = w.chars();
-        chars.next().and_then(Axis::from_letter).is_some()
-            && crate::front::gcode::parse_decimal(chars.as_str()).is_some()
-    })
 }
 
 fn balanced(text: &str) -> bool {

@@ -96,10 +96,11 @@ pub fn write_block(out: &mut String, block: &Block) {
         }
         BlockKind::Command(c) => {
             let _ = write!(out, "command {:?}", c.text);
-            if c.modes.inch {
+            let modes = c.modes.unwrap_or_default();
+            if modes.inch {
                 out.push_str(" inch");
             }
-            if c.modes.relative {
+            if modes.relative {
                 out.push_str(" relative");
             }
             if !c.clobbers.is_empty() {

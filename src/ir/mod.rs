@@ -389,8 +389,10 @@ pub struct Command {
     /// The words as written, separated by single spaces, without line number,
     /// checksum or comments.
     pub text: String,
-    /// Modes its axis words were written in (default when it has none).
-    pub modes: WrittenModes,
+    /// For a G code with coordinates (`G28 Z5`, `G38.2 Z-3`): the units and distance mode
+    /// they were written in, which the backend puts the controller into first. `None`
+    /// when the words do not depend on modes (`M3 S1000`, `M201 X2500`, `G28 X Y`).
+    pub modes: Option<WrittenModes>,
     /// Axes whose position is unknown after it (homing, probing, macro calls).
     pub clobbers: AxisSet,
 }

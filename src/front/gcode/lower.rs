@@ -450,7 +450,7 @@ impl Lowerer {
                         span,
                         BlockKind::Command(Command {
                             text: strip_line_number_and_comments(text),
-                            modes: WrittenModes::default(),
+                            modes: None,
                             clobbers: clob,
                         }),
                     );
@@ -1201,7 +1201,7 @@ impl Lowerer {
                 .collect();
             // Only G codes take coordinates in the current units and distance mode; an M code's
             // axis words are settings (`M201 X2500`, `M563 X3`).
-            let coordinates = !other_g.is_empty();
+            let coordinates = !other_g.is_empty() && !named.is_empty();
             let mut cmd = self.command(
                 span,
                 &words,
@@ -1502,14 +1502,10 @@ impl Lowerer {
         }
         let clob = clobbers(g, m, named);
         self.pos.forget(clob);
-        let modes = if with_axes && !named.is_empty() {
-            WrittenModes {
-                relative_e: self.relative_e && named.contains(Axis::E),
-                ..self.modes()
-            }
-        } else {
-            WrittenModes::default()
-        };
+        let modes = with_axes.then(|| WrittenModes {
+            relative_e: self.relative_e && named.contains(Axis::E),
+            ..self.modes()
+        });
         Block::new(
             span,
             BlockKind::Command(Command {
