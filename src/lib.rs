@@ -19,6 +19,7 @@ pub mod back;
 pub mod diag;
 pub mod front;
 pub mod ir;
+pub mod machine;
 pub mod passes;
 pub mod pipeline;
 pub mod preset;

@@ -108,9 +108,20 @@ impl Builder {
 
     /// Builds the passes; fails on an unknown pass, bad options or dump point.
     pub fn build(self) -> Result<Pipeline, String> {
+        if let Some(m) = &self.preset.machine {
+            m.check().map_err(|e| format!("[machine]: {e}"))?;
+        }
+        let context = passes::Context {
+            machine: self.preset.machine.as_ref(),
+            decimals: match self.preset.emit {
+                Emit::Rrf => Some(self.preset.rrf.decimals),
+                Emit::Gcode => Some(self.preset.gcode.decimals),
+                Emit::Ir => None,
+            },
+        };
         let mut passes = Vec::new();
         for spec in &self.preset.passes {
-            passes.push(passes::build(&spec.name, &spec.options)?);
+            passes.push(passes::build(&spec.name, &spec.options, &context)?);
         }
         let dump_at = match &self.dump_after {
             None => None,

@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::back::{gcode, rrf};
 use crate::front;
+use crate::machine::Machine;
 
 /// The output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -42,6 +43,8 @@ pub struct Preset {
     pub emit: Emit,
     /// Passes, in order.
     pub passes: Vec<PassSpec>,
+    /// The machine the kinematics, feed and limits passes compute for.
+    pub machine: Option<Machine>,
     /// G-code frontend options.
     pub gcode_input: front::gcode::Options,
     /// Plain G-code backend options.

@@ -9,8 +9,31 @@ pub mod verify;
 
 use serde::de::DeserializeOwned;
 
+use crate::back::Decimals;
 use crate::diag::Diagnostic;
 use crate::ir::Block;
+use crate::machine::Machine;
+
+/// What a pass may know about the pipeline it runs in besides its own options.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Context<'a> {
+    /// The preset's machine, if it defines one.
+    pub machine: Option<&'a Machine>,
+    /// The precision the backend prints with (`None` for the IR dump), so a pass can
+    /// compute with the numbers the controller will see.
+    pub decimals: Option<Decimals>,
+}
+
+impl<'a> Context<'a> {
+    /// The machine, or the error a pass that needs one reports.
+    pub fn require_machine(&self, pass: &str) -> Result<&'a Machine, String> {
+        self.machine.ok_or_else(|| {
+            format!(
+                "pass `{pass}` needs a machine: use a preset with a [machine] table (for example --preset emoc-x5)"
+            )
+        })
+    }
+}
 
 /// Where a pass puts its output.
 pub struct Output<'a> {
@@ -53,8 +76,8 @@ pub struct PassInfo {
     pub name: &'static str,
     /// One-line description.
     pub summary: &'static str,
-    /// Builds the pass from its options table.
-    pub build: fn(&toml::Table) -> Result<Box<dyn Pass>, String>,
+    /// Builds the pass from its options table and the pipeline context.
+    pub build: fn(&toml::Table, &Context<'_>) -> Result<Box<dyn Pass>, String>,
     /// The default options, as TOML.
     pub defaults: fn() -> String,
 }
@@ -71,11 +94,16 @@ pub fn lookup(name: &str) -> Option<&'static PassInfo> {
 ///
 /// ```
 /// let opts: toml::Table = toml::from_str("rapid_feed = 5000.0").unwrap();
-/// let pass = ncpost::passes::build("stats", &opts).unwrap();
+/// let ctx = ncpost::passes::Context::default();
+/// let pass = ncpost::passes::build("stats", &opts, &ctx).unwrap();
 /// assert_eq!(pass.name(), "stats");
-/// assert!(ncpost::passes::build("stats", &toml::from_str("bogus = 1").unwrap()).is_err());
+/// assert!(ncpost::passes::build("stats", &toml::from_str("bogus = 1").unwrap(), &ctx).is_err());
 /// ```
-pub fn build(name: &str, options: &toml::Table) -> Result<Box<dyn Pass>, String> {
+pub fn build(
+    name: &str,
+    options: &toml::Table,
+    context: &Context<'_>,
+) -> Result<Box<dyn Pass>, String> {
     let info = lookup(name).ok_or_else(|| {
         let names: Vec<&str> = REGISTRY.iter().map(|p| p.name).collect();
         format!(
@@ -83,7 +111,7 @@ pub fn build(name: &str, options: &toml::Table) -> Result<Box<dyn Pass>, String>
             names.join(", ")
         )
     })?;
-    (info.build)(options).map_err(|e| format!("options of pass `{name}`: {e}"))
+    (info.build)(options, context).map_err(|e| format!("options of pass `{name}`: {e}"))
 }
 
 /// Deserialises a pass's options struct from a table.

@@ -53,7 +53,7 @@ pub struct Stats {
 pub const INFO: PassInfo = PassInfo {
     name: "stats",
     summary: "report path lengths, a time estimate, the bounding box and block counts",
-    build: |t| Ok(Box::new(Stats::new(super::options(t)?))),
+    build: |t, _| Ok(Box::new(Stats::new(super::options(t)?))),
     defaults: || super::to_toml(&Options::default()),
 };
 

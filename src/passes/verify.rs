@@ -21,7 +21,7 @@ pub struct Verify {
 pub const INFO: PassInfo = PassInfo {
     name: "verify",
     summary: "check the IR invariants (spans, finite numbers, known axes, unit tool axes)",
-    build: |t| {
+    build: |t, _| {
         let _: Options = super::options(t)?;
         Ok(Box::new(Verify { verifier: Verifier }))
     },

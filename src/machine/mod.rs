@@ -1,0 +1,420 @@
+//! The machine model: axes, kinematics and controller facts of a two-rotary 5-axis machine.
+//!
+//! One definition (the `[machine]` table of a preset) describes the linear axes, the two
+//! rotary axes (on the table or in the head, their direction, pivot, limits, preference and
+//! calibration offset) and the controller (how it interprets F, its speed limits). The
+//! kinematics passes (`ik`, `unwrap-rotary`, `densify`), `feed` and `limits` all read it.
+//!
+//! # Frames and conventions
+//! - The *part frame* is the CL data's frame. When every rotary is at its kinematic zero
+//!   it coincides with the *machine frame* the linear axes move in (the seed's rule: the
+//!   CAM origin is the machine's work origin).
+//! - Rotary joint values are degrees. A joint value `j` turns its element by
+//!   `direction * (j - zero_offset)` degrees, right-handed about the +X, +Y or +Z machine
+//!   direction of its letter (A, B, C). Table axes usually have `direction = -1`: a positive
+//!   C turns the table clockwise seen from above, so the tool moves counter-clockwise
+//!   around the part, as ISO requires.
+//! - Rotaries are listed from the base outward: on a table, the first carries the second
+//!   (a cradle A carrying a C table); in a head, the first carries the second (a C fork
+//!   carrying an A tilt). A table pivot is a point on the axis in the machine frame at zero;
+//!   a head pivot is a point on the axis relative to the tool tip at zero, so a head pivot
+//!   includes the tool length.
+//! - X, Y, Z are the tool tip's position in the machine frame when the head rotaries are
+//!   at zero (the usual "tool tip" control point with tool length compensation).
+
+mod config_g;
+mod kinematics;
+
+pub use kinematics::{Orientation, ToolPose};
+
+use serde::{Deserialize, Serialize};
+
+use crate::ir::Axis;
+
+/// Where a rotary axis sits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Mount {
+    /// It turns the part.
+    Table,
+    /// It turns the tool.
+    Head,
+}
+
+/// The letter of a rotary axis: A about X, B about Y, C about Z.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RotaryLetter {
+    /// About X.
+    A,
+    /// About Y.
+    B,
+    /// About Z.
+    C,
+}
+
+impl RotaryLetter {
+    /// The IR axis.
+    pub fn axis(self) -> Axis {
+        match self {
+            RotaryLetter::A => Axis::A,
+            RotaryLetter::B => Axis::B,
+            RotaryLetter::C => Axis::C,
+        }
+    }
+}
+
+/// Which of the two inverse-kinematics solutions a machine prefers when limits and
+/// continuity do not decide.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Prefer {
+    /// The solution where this axis is positive (or zero).
+    Positive,
+    /// The solution where this axis is negative (or zero).
+    Negative,
+    /// No preference.
+    #[default]
+    None,
+}
+
+/// One rotary axis.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Rotary {
+    /// A, B or C.
+    pub axis: RotaryLetter,
+    /// Table or head.
+    pub on: Mount,
+    /// +1 or -1: the sense a positive joint value turns the element in.
+    #[serde(default = "one")]
+    pub direction: f64,
+    /// A point on the axis: machine frame at zero (table) or relative to the tool tip at
+    /// zero (head), mm.
+    #[serde(default)]
+    pub pivot: [f64; 3],
+    /// Lowest joint value, degrees (none for a cyclic axis).
+    #[serde(default)]
+    pub min: Option<f64>,
+    /// Highest joint value, degrees.
+    #[serde(default)]
+    pub max: Option<f64>,
+    /// The axis turns without end; any angle plus a multiple of 360 is the same pose.
+    #[serde(default)]
+    pub cyclic: bool,
+    /// Which solution to take when limits and continuity do not decide.
+    #[serde(default)]
+    pub prefer: Prefer,
+    /// Calibration: the joint value at which the axis is at its true kinematic zero
+    /// (from `bed.g` probing), degrees.
+    #[serde(default)]
+    pub zero_offset: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// Travel of a linear axis, mm.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Travel {
+    /// Lowest position.
+    pub min: f64,
+    /// Highest position.
+    pub max: f64,
+}
+
+/// The linear axes' travel.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Linear {
+    /// X travel.
+    #[serde(rename = "X")]
+    pub x: Travel,
+    /// Y travel.
+    #[serde(rename = "Y")]
+    pub y: Travel,
+    /// Z travel.
+    #[serde(rename = "Z")]
+    pub z: Travel,
+}
+
+/// How the controller turns F into time (SPEC §2, §8).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FeedRule {
+    /// NIST RS274NGC 2.1.2.5, as RepRapFirmware and LinuxCNC in G94: F is the XYZ speed
+    /// (mm/min) when any of X, Y, Z moves, otherwise the rotary speed (deg/min).
+    #[default]
+    Nist,
+    /// G93: each move takes 1/F minutes.
+    InverseTime,
+    /// F is the Euclidean speed over all joints (mm and degrees mixed).
+    Euclidean,
+}
+
+/// Per-axis values (mm or degrees based), for axes the machine has.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PerAxis {
+    /// X.
+    #[serde(rename = "X", default, skip_serializing_if = "Option::is_none")]
+    pub x: Option<f64>,
+    /// Y.
+    #[serde(rename = "Y", default, skip_serializing_if = "Option::is_none")]
+    pub y: Option<f64>,
+    /// Z.
+    #[serde(rename = "Z", default, skip_serializing_if = "Option::is_none")]
+    pub z: Option<f64>,
+    /// A.
+    #[serde(rename = "A", default, skip_serializing_if = "Option::is_none")]
+    pub a: Option<f64>,
+    /// B.
+    #[serde(rename = "B", default, skip_serializing_if = "Option::is_none")]
+    pub b: Option<f64>,
+    /// C.
+    #[serde(rename = "C", default, skip_serializing_if = "Option::is_none")]
+    pub c: Option<f64>,
+}
+
+impl PerAxis {
+    /// The value for `axis`, if given.
+    pub fn get(&self, axis: Axis) -> Option<f64> {
+        match axis {
+            Axis::X => self.x,
+            Axis::Y => self.y,
+            Axis::Z => self.z,
+            Axis::A => self.a,
+            Axis::B => self.b,
+            Axis::C => self.c,
+            _ => None,
+        }
+    }
+}
+
+/// Per-axis driver assignments for `M584` (`"0.0"`, `"0.1:0.2"`).
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Drivers {
+    /// X.
+    #[serde(rename = "X", default, skip_serializing_if = "Option::is_none")]
+    pub x: Option<String>,
+    /// Y.
+    #[serde(rename = "Y", default, skip_serializing_if = "Option::is_none")]
+    pub y: Option<String>,
+    /// Z.
+    #[serde(rename = "Z", default, skip_serializing_if = "Option::is_none")]
+    pub z: Option<String>,
+    /// A.
+    #[serde(rename = "A", default, skip_serializing_if = "Option::is_none")]
+    pub a: Option<String>,
+    /// B.
+    #[serde(rename = "B", default, skip_serializing_if = "Option::is_none")]
+    pub b: Option<String>,
+    /// C.
+    #[serde(rename = "C", default, skip_serializing_if = "Option::is_none")]
+    pub c: Option<String>,
+}
+
+impl Drivers {
+    /// The driver of `axis`, if given.
+    pub fn get(&self, axis: Axis) -> Option<&str> {
+        match axis {
+            Axis::X => self.x.as_deref(),
+            Axis::Y => self.y.as_deref(),
+            Axis::Z => self.z.as_deref(),
+            Axis::A => self.a.as_deref(),
+            Axis::B => self.b.as_deref(),
+            Axis::C => self.c.as_deref(),
+            _ => None,
+        }
+    }
+}
+
+/// What the controller does with F and how fast it can go.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Controller {
+    /// How F is interpreted.
+    pub feed_rule: FeedRule,
+    /// The controller never moves slower than this, mm/min (RepRapFirmware: 0.5 mm/s
+    /// unless `M203 I` lowers it).
+    pub min_speed: f64,
+    /// Highest speed per axis, mm/min or deg/min (`M203`).
+    pub max_feed: PerAxis,
+    /// Acceleration per axis, mm/s² or deg/s² (`M201`).
+    pub acceleration: PerAxis,
+    /// Stepper drivers per axis (`M584`); axes without one are left out.
+    pub drivers: Drivers,
+}
+
+impl Default for Controller {
+    fn default() -> Self {
+        Controller {
+            feed_rule: FeedRule::Nist,
+            min_speed: 30.0,
+            max_feed: PerAxis::default(),
+            acceleration: PerAxis::default(),
+            drivers: Drivers::default(),
+        }
+    }
+}
+
+/// A two-rotary 5-axis machine.
+///
+/// ```
+/// use ncpost::machine::Machine;
+/// let m = Machine::from_toml(r#"
+///     name = "cradle"
+///     [[rotary]]
+///     axis = "A"
+///     on = "table"
+///     direction = -1
+///     pivot = [0, 0, 100]
+///     min = -90
+///     max = 135
+///     [[rotary]]
+///     axis = "C"
+///     on = "table"
+///     direction = -1
+///     cyclic = true
+/// "#).unwrap();
+/// let pose = m.forward(&[10.0, 20.0, 30.0], [30.0, 45.0]);
+/// let back = m.inverse(pose.axis);
+/// let xyz = m.linear(&pose.tip, [30.0, 45.0]);
+/// assert!((xyz[0] - 10.0).abs() < 1e-9 && (xyz[1] - 20.0).abs() < 1e-9 && (xyz[2] - 30.0).abs() < 1e-9);
+/// assert!(back.iter().any(|o| (o.angles[0] - 30.0).abs() < 1e-9 && (o.angles[1] - 45.0).abs() < 1e-9));
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Machine {
+    /// What the machine is.
+    #[serde(default)]
+    pub name: String,
+    /// The two rotary axes, from the base outward.
+    pub rotary: Vec<Rotary>,
+    /// Linear travel (absent: unchecked).
+    #[serde(default)]
+    pub linear: Option<Linear>,
+    /// The controller.
+    #[serde(default)]
+    pub controller: Controller,
+}
+
+/// Which elements the two rotaries sit on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// Both turn the part (trunnion, cradle + table).
+    TableTable,
+    /// The first turns the part, the second the tool (in either listing order).
+    HeadTable,
+    /// Both turn the tool (fork head).
+    HeadHead,
+}
+
+impl Machine {
+    /// Parses and checks a machine definition (the body of a preset's `[machine]` table).
+    pub fn from_toml(text: &str) -> Result<Machine, String> {
+        let m: Machine = toml::from_str(text).map_err(|e| e.to_string())?;
+        m.check()?;
+        Ok(m)
+    }
+
+    /// Checks what serde cannot: two rotaries about different directions, signs of ±1,
+    /// limits in order, finite numbers.
+    pub fn check(&self) -> Result<(), String> {
+        if self.rotary.len() != 2 {
+            return Err(format!(
+                "a machine needs exactly two rotary axes, this one has {}",
+                self.rotary.len()
+            ));
+        }
+        if self.rotary[0].axis == self.rotary[1].axis {
+            return Err(format!(
+                "both rotary axes are {:?}; they must turn about different directions",
+                self.rotary[0].axis
+            ));
+        }
+        for r in &self.rotary {
+            let name = r.axis.axis().letter();
+            if r.direction != 1.0 && r.direction != -1.0 {
+                return Err(format!("rotary {name}: direction must be 1 or -1"));
+            }
+            if !r.pivot.iter().all(|v| v.is_finite()) || !r.zero_offset.is_finite() {
+                return Err(format!(
+                    "rotary {name}: pivot and zero_offset must be finite"
+                ));
+            }
+            match (r.cyclic, r.min, r.max) {
+                (true, None, None) => {}
+                (true, _, _) => {
+                    return Err(format!(
+                        "rotary {name}: a cyclic axis has no min or max; leave them out"
+                    ));
+                }
+                (false, Some(lo), Some(hi)) if lo.is_finite() && hi.is_finite() && lo < hi => {}
+                (false, _, _) => {
+                    return Err(format!(
+                        "rotary {name}: give min < max, or set cyclic = true"
+                    ));
+                }
+            }
+        }
+        if let Some(l) = &self.linear {
+            for (n, t) in [("X", l.x), ("Y", l.y), ("Z", l.z)] {
+                if !(t.min.is_finite() && t.max.is_finite() && t.min < t.max) {
+                    return Err(format!("linear {n}: give min < max"));
+                }
+            }
+        }
+        if !(self.controller.min_speed.is_finite() && self.controller.min_speed >= 0.0) {
+            return Err("controller.min_speed must be a finite number >= 0".into());
+        }
+        Ok(())
+    }
+
+    /// The layout.
+    pub fn layout(&self) -> Layout {
+        match (self.rotary[0].on, self.rotary[1].on) {
+            (Mount::Table, Mount::Table) => Layout::TableTable,
+            (Mount::Head, Mount::Head) => Layout::HeadHead,
+            _ => Layout::HeadTable,
+        }
+    }
+
+    /// The IR axes of the two rotaries, in listing order.
+    pub fn rotary_axes(&self) -> [Axis; 2] {
+        [self.rotary[0].axis.axis(), self.rotary[1].axis.axis()]
+    }
+
+    /// The rotary that drives `axis`, with its index.
+    pub fn rotary_of(&self, axis: Axis) -> Option<(usize, &Rotary)> {
+        self.rotary
+            .iter()
+            .enumerate()
+            .find(|(_, r)| r.axis.axis() == axis)
+    }
+
+    /// The limits of `axis` (linear or rotary), `None` when unlimited or unknown.
+    pub fn limits(&self, axis: Axis) -> Option<(f64, f64)> {
+        if let Some((_, r)) = self.rotary_of(axis) {
+            return match (r.cyclic, r.min, r.max) {
+                (false, Some(lo), Some(hi)) => Some((lo, hi)),
+                _ => None,
+            };
+        }
+        let l = self.linear.as_ref()?;
+        let t = match axis {
+            Axis::X => l.x,
+            Axis::Y => l.y,
+            Axis::Z => l.z,
+            _ => return None,
+        };
+        Some((t.min, t.max))
+    }
+
+    /// The `config.g` fragment (M584, M208, M203, M201) for RepRapFirmware.
+    pub fn config_g(&self) -> String {
+        config_g::write(self)
+    }
+}
