@@ -22,6 +22,7 @@ pub mod ir;
 pub mod machine;
 pub mod passes;
 pub mod pipeline;
+pub mod plot;
 pub mod preset;
 
 pub use diag::{Diagnostic, Severity};

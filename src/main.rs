@@ -9,7 +9,7 @@ use std::process::ExitCode;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use ncpost::diag::{Diagnostic, Severity};
 use ncpost::passes;
-use ncpost::pipeline::{Builder, Pipeline, Summary};
+use ncpost::pipeline::{Builder, Pipeline, Source, Summary};
 use ncpost::preset::{BUILTIN, Emit, Preset};
 
 /// Compiles NC programs: G-code in, RepRapFirmware or plain G-code out.
@@ -30,6 +30,42 @@ enum Command {
     Passes,
     /// List the built-in presets.
     Presets,
+    /// Draw a compiled program: joint values over time (SVG).
+    Plot(PlotArgs),
+    /// Facts about a preset's machine.
+    #[command(subcommand)]
+    Machine(MachineCommand),
+}
+
+#[derive(Subcommand)]
+enum MachineCommand {
+    /// Print the RepRapFirmware config.g fragment (M584, M208, M203, M201) for the machine.
+    ConfigG(PresetArgs),
+}
+
+#[derive(Args)]
+struct PresetArgs {
+    /// A built-in preset name or a preset file.
+    #[arg(long, conflicts_with = "config")]
+    preset: Option<String>,
+    /// A preset file.
+    #[arg(long, value_name = "FILE")]
+    config: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct PlotArgs {
+    #[command(flatten)]
+    pipeline: PipelineArgs,
+    /// Plot X, Y, Z and the rotary axes over time (the only plot so far; the default).
+    #[arg(long)]
+    joints: bool,
+    /// Speed assumed for rapids, mm/min.
+    #[arg(long, default_value_t = 3000.0)]
+    rapid_feed: f64,
+    /// The SVG file; `-` or absent for standard output.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
 }
 
 #[derive(Args)]
@@ -129,6 +165,95 @@ fn main() -> ExitCode {
             args.dump_after.as_deref(),
         ),
         Command::Check(args) => run(&args, true, None, None, None),
+        Command::Plot(args) => plot(&args),
+        Command::Machine(MachineCommand::ConfigG(args)) => config_g(&args),
+    }
+}
+
+/// The preset named by `--preset` / `--config` (default: `default`).
+fn load_preset(preset: Option<&str>, config: Option<&Path>) -> Result<Preset, String> {
+    match config {
+        Some(path) => {
+            let text = std::fs::read_to_string(path)
+                .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
+            Preset::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))
+        }
+        None => Preset::load(preset.unwrap_or("default")),
+    }
+}
+
+fn config_g(args: &PresetArgs) -> ExitCode {
+    let preset = match load_preset(args.preset.as_deref(), args.config.as_deref()) {
+        Ok(p) => p,
+        Err(e) => return usage(e),
+    };
+    let Some(machine) = preset.machine else {
+        return usage("this preset has no [machine] table; try --preset emoc-x5");
+    };
+    if let Err(e) = machine.check() {
+        return usage(format!("[machine]: {e}"));
+    }
+    print!("{}", machine.config_g());
+    ExitCode::SUCCESS
+}
+
+fn plot(args: &PlotArgs) -> ExitCode {
+    let _ = args.joints;
+    let pipeline_args = &args.pipeline;
+    let mut pipeline = match builder(pipeline_args, None, None).and_then(|b| b.build()) {
+        Ok(p) => p,
+        Err(e) => return usage(e),
+    };
+    let source = source_of(pipeline_args);
+    let (input, file_name) = match open_input(&pipeline_args.input) {
+        Ok(x) => x,
+        Err(code) => return code,
+    };
+    let mut printer = Printer::new(&file_name, pipeline_args.quiet, pipeline_args.message_format);
+    let mut plot = ncpost::plot::JointPlot::new(args.rapid_feed);
+    let summary = pipeline.run_into(source, input, &mut plot, &mut |d| printer.print(d));
+    if summary.errors > 0 {
+        return finish(Ok(summary), &mut printer);
+    }
+    let svg = plot.svg();
+    match args.output.as_deref().filter(|o| o.as_os_str() != "-") {
+        None => {
+            print!("{svg}");
+            finish(Ok(summary), &mut printer)
+        }
+        Some(path) => write_atomically(
+            path,
+            |out, _| {
+                out.write_all(svg.as_bytes())
+                    .map(|_| summary)
+                    .map_err(|e| Diagnostic::error("io::write", e.to_string()))
+            },
+            &mut printer,
+        ),
+    }
+}
+
+fn source_of(args: &PipelineArgs) -> Source {
+    match args.from.unwrap_or_else(|| from_extension(&args.input)) {
+        FromArg::Cl => Source::Cl,
+        _ => Source::Gcode,
+    }
+}
+
+/// Opens the input (`-` is standard input) and names it for diagnostics.
+fn open_input(path: &Path) -> Result<(Box<dyn io::BufRead>, String), ExitCode> {
+    if path.as_os_str() == "-" {
+        return Ok((Box::new(io::stdin().lock()), "<stdin>".to_string()));
+    }
+    if path.is_dir() {
+        return Err(usage(format!("{} is a directory; give an input file", path.display())));
+    }
+    match File::open(path) {
+        Ok(f) => Ok((
+            Box::new(BufReader::with_capacity(1 << 16, f)),
+            path.display().to_string(),
+        )),
+        Err(e) => Err(usage(format!("cannot open {}: {e}", path.display()))),
     }
 }
 

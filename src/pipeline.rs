@@ -9,6 +9,15 @@ use crate::ir::{Block, dump};
 use crate::passes::{self, Output, Pass};
 use crate::preset::{Emit, PassSpec, Preset};
 
+/// An input language.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Source {
+    /// G-code (ISO, LinuxCNC, RepRapFirmware dialects).
+    Gcode,
+    /// APT CL data (and NX CLSF listings).
+    Cl,
+}
+
 /// Counts of a finished run.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct Summary {
@@ -264,6 +273,27 @@ impl Pipeline {
         match io_error {
             Some(d) => Err(d),
             None => Ok(summary),
+        }
+    }
+
+    /// Reads `input` in the language `source` and runs it through the passes into `back`,
+    /// on this thread (for backends that are not writers, such as plots).
+    pub fn run_into(
+        &mut self,
+        source: Source,
+        input: impl BufRead,
+        back: &mut dyn Backend,
+        on_diag: &mut dyn FnMut(Diagnostic),
+    ) -> Summary {
+        match source {
+            Source::Gcode => {
+                let mut front = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
+                self.run(&mut front, back, on_diag)
+            }
+            Source::Cl => {
+                on_diag(Diagnostic::error("pipeline::source", "CL input is not wired yet"));
+                Summary { errors: 1, ..Summary::default() }
+            }
         }
     }
 
