@@ -4,6 +4,8 @@
 //! (serde, `deny_unknown_fields`) and a one-line summary, and is listed in [`REGISTRY`],
 //! which is also where the command line gets its list of valid names.
 
+pub mod densify;
+pub mod feed;
 pub mod stats;
 pub mod verify;
 
@@ -83,7 +85,7 @@ pub struct PassInfo {
 }
 
 /// Every pass, in the order `ncpost passes` lists them.
-pub const REGISTRY: &[PassInfo] = &[verify::INFO, stats::INFO];
+pub const REGISTRY: &[PassInfo] = &[verify::INFO, stats::INFO, densify::INFO, feed::INFO];
 
 /// The registry entry for `name`.
 pub fn lookup(name: &str) -> Option<&'static PassInfo> {

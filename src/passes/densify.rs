@@ -1,0 +1,701 @@
+//! `densify`: split joint moves until the joint-linear path follows the programmed CL segment.
+//!
+//! A controller without tool-centre-point control interpolates the joints linearly, so
+//! between two blocks the tool tip follows `FK(lerp(j0, j1, s))`, not the programmed
+//! straight line, and the tool axis does not turn along the great circle. This pass checks
+//! that path against the programmed segment (tip on the straight line from `FK(j0).tip` to
+//! `FK(j1).tip`, axis on the great-circle arc from `FK(j0).axis` to `FK(j1).axis`) and
+//! splits a move at its programmed midpoint until every piece is within tolerance.
+//!
+//! # Why the check cannot miss a bump
+//! The check is not a plain sampling. For the tip `p(s)` of the joint-linear path, an upper
+//! bound `M` of `|p''(s)|` over the whole move follows from the joint deltas and the
+//! machine's geometry (each rotary stage turning at `ω` rad per unit `s` about an axis at
+//! distance `ρ` adds `ω²ρ + 2ωV` to the bound, `V` being the bound of the speed entering
+//! it). Between two samples `a < b` the path differs from its chord by at most
+//! `M (b - a)² / 8`, and the distance to the (convex) programmed segment is at most the
+//! larger of its values at the chord's ends, so on `[a, b]` the tip deviation is at most
+//! `max(d(a), d(b)) + M (b - a)² / 8`. The tool axis is handled the same way with the cone
+//! spanned by the arc (convex, as the arc is at most 180°): the sine of the angle to the
+//! arc is that cone's distance, and `|axis''| <= (ω0 + ω1)²`. The check bisects an
+//! interval only while this bound exceeds the tolerance, so a move within tolerance is
+//! proven so (usually with no sample at all for short CL steps), and a move is split as
+//! soon as one sample is out of tolerance.
+//!
+//! # How a move is split
+//! At the programmed midpoint: the tip halfway along the line, the axis halfway along the
+//! arc, solved by inverse kinematics with the orientation and whole turns nearest the
+//! interpolated rotary values, so the pieces stay on the branch the move is on (at a
+//! singular orientation the free rotary takes its interpolated value). A move that starts
+//! or ends at a singular orientation whose free rotary sits at another value than the
+//! other end needs (`ik` held the previous angle there) first turns that rotary on the
+//! spot, as halving could never take that swing out of the pieces next to the end. Every
+//! piece is a copy of the move (span, feed, extra words) with its own target; the last
+//! one is the original block with its comments. After `max_depth` halvings a piece stays
+//! as it is and the move gets the warning `densify::depth`.
+//!
+//! Only linear moves (and rapids with `rapids = true`) from a position with all five
+//! machine axes known are checked; commands and lines that clobber axes make the next
+//! move start from an unknown position.
+
+use nalgebra::{Point3, Rotation3, Unit, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::{Output, Pass, PassInfo};
+use crate::diag::Diagnostic;
+use crate::ir::{Axis, Block, BlockKind, Joints, Motion, MotionKind, Span, Target};
+use crate::machine::{Machine, Mount, RotaryLetter, ToolPose};
+
+/// Options of `densify`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Options {
+    /// Largest distance of the tool tip from the programmed straight line, mm.
+    pub tip_tolerance: f64,
+    /// Largest angle between the tool axis and the programmed great-circle arc, degrees.
+    pub axis_tolerance: f64,
+    /// Most halvings of one move (at most `2^max_depth` pieces); beyond it the piece is
+    /// kept as it is, with a warning.
+    pub max_depth: u32,
+    /// Split rapids too (by default a rapid's path is not checked).
+    pub rapids: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            tip_tolerance: 0.01,
+            axis_tolerance: 0.05,
+            max_depth: 16,
+            rapids: false,
+        }
+    }
+}
+
+impl Options {
+    fn check(&self) -> Result<(), String> {
+        if !(self.tip_tolerance.is_finite() && self.tip_tolerance > 0.0) {
+            return Err("tip_tolerance must be a positive number of millimetres".into());
+        }
+        if !(self.axis_tolerance.is_finite()
+            && self.axis_tolerance > 0.0
+            && self.axis_tolerance < 90.0)
+        {
+            return Err("axis_tolerance must be between 0 and 90 degrees".into());
+        }
+        if self.max_depth > 30 {
+            return Err("max_depth must be at most 30".into());
+        }
+        Ok(())
+    }
+}
+
+/// Registry entry.
+pub const INFO: PassInfo = PassInfo {
+    name: "densify",
+    summary: "split joint moves until the joint-linear path stays within tolerance of the programmed tip line and tool-axis arc",
+    build: |t, ctx| {
+        let machine = ctx.require_machine("densify")?;
+        Ok(Box::new(Densify::new(machine.clone(), super::options(t)?)?))
+    },
+    defaults: || super::to_toml(&Options::default()),
+};
+
+/// Closer than this to a singular orientation (degrees) the free rotary is held at its
+/// interpolated value instead of taking the inverse kinematics' arbitrary choice.
+const SINGULAR_DEG: f64 = 1e-6;
+
+/// Bisection levels of one check before a move is treated as out of tolerance; only a
+/// deviation within rounding of the tolerance gets that deep.
+const CHECK_LEVELS: u8 = 20;
+
+/// A joint position with its five machine axes and tool pose.
+#[derive(Debug, Clone, Copy)]
+struct Node {
+    joints: Joints,
+    xyz: [f64; 3],
+    angles: [f64; 2],
+    pose: ToolPose,
+}
+
+/// The programmed straight line of the tool tip.
+struct Segment {
+    start: Point3<f64>,
+    dir: Vector3<f64>,
+    len: f64,
+}
+
+impl Segment {
+    fn new(a: &Point3<f64>, b: &Point3<f64>) -> Segment {
+        let d = b - a;
+        let len = d.norm();
+        Segment {
+            start: *a,
+            dir: if len > 0.0 { d / len } else { Vector3::zeros() },
+            len,
+        }
+    }
+
+    fn distance(&self, p: &Point3<f64>) -> f64 {
+        let v = p - self.start;
+        let t = v.dot(&self.dir).clamp(0.0, self.len);
+        (v - self.dir * t).norm()
+    }
+}
+
+/// The programmed great-circle arc of the tool axis, in the frame `e1` (start), `e2`
+/// (towards the end, in the arc's plane), `n` (normal).
+struct AxisArc {
+    e1: Vector3<f64>,
+    e2: Vector3<f64>,
+    n: Vector3<f64>,
+    end: Vector3<f64>,
+    /// Arc angle, radians (0 when start and end coincide).
+    phi: f64,
+}
+
+impl AxisArc {
+    /// `mid` gives a point of the joint-linear path to pick the plane when the ends are
+    /// antiparallel (any great circle joins them; the one the machine sweeps is meant).
+    fn new(
+        u0: &Unit<Vector3<f64>>,
+        u1: &Unit<Vector3<f64>>,
+        mid: impl FnOnce() -> Vector3<f64>,
+    ) -> AxisArc {
+        let e1 = u0.into_inner();
+        let end = u1.into_inner();
+        let cos = e1.dot(&end);
+        let perp = end - e1 * cos;
+        let sin = perp.norm();
+        let (e2, phi) = if sin > 1e-12 {
+            (perp / sin, sin.atan2(cos))
+        } else if cos > 0.0 {
+            (any_perpendicular(&e1), 0.0)
+        } else {
+            let m = mid();
+            let p = m - e1 * e1.dot(&m);
+            let e2 = if p.norm() > 1e-9 {
+                p.normalize()
+            } else {
+                any_perpendicular(&e1)
+            };
+            (e2, std::f64::consts::PI)
+        };
+        AxisArc {
+            e1,
+            e2,
+            n: e1.cross(&e2),
+            end,
+            phi,
+        }
+    }
+
+    /// The point at fraction `t` of the arc.
+    fn slerp(&self, t: f64) -> Unit<Vector3<f64>> {
+        let (s, c) = (t * self.phi).sin_cos();
+        Unit::new_normalize(self.e1 * c + self.e2 * s)
+    }
+
+    /// The angle (radians) from `a` to the nearest point of the arc, and the distance of
+    /// `a` from the cone the arc spans (the sine of that angle while it is below 90°).
+    fn deviation(&self, a: &Vector3<f64>) -> (f64, f64) {
+        let x = a.dot(&self.e1);
+        let y = a.dot(&self.e2);
+        let z = a.dot(&self.n);
+        if self.phi > 0.0 {
+            let alpha = y.atan2(x);
+            if (0.0..=self.phi).contains(&alpha) {
+                return (z.abs().atan2(x.hypot(y)), z.abs());
+            }
+        }
+        let end = |u: &Vector3<f64>| {
+            let c = a.dot(u);
+            let s = a.cross(u).norm();
+            (s.atan2(c), if c >= 0.0 { s } else { 1.0 })
+        };
+        let (t0, d0) = end(&self.e1);
+        let (t1, d1) = end(&self.end);
+        (t0.min(t1), d0.min(d1))
+    }
+}
+
+fn any_perpendicular(v: &Vector3<f64>) -> Vector3<f64> {
+    let helper = if v.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    v.cross(&helper).normalize()
+}
+
+/// Shifts `value` by whole turns to the representative nearest `target`.
+fn nearest_turn(value: f64, target: f64) -> f64 {
+    value + 360.0 * ((target - value) / 360.0).round()
+}
+
+/// Bounds of a point moving along the joint-linear path through one kinematic stage.
+#[derive(Debug, Clone, Copy)]
+struct Jet {
+    /// The point at `s = 0` and `s = 1`.
+    ends: [Vector3<f64>; 2],
+    /// Bound of `|q'(s)|`.
+    speed: f64,
+    /// Bound of `|q''(s)|`.
+    accel: f64,
+}
+
+/// The `densify` pass.
+pub struct Densify {
+    machine: Machine,
+    options: Options,
+    axes: [Axis; 2],
+    axis_tol: f64,
+    sin_axis_tol: f64,
+    /// Indices of the head rotaries, base outward, and of the table rotaries.
+    head: Vec<usize>,
+    table: Vec<usize>,
+    /// The last emitted position.
+    prev: Joints,
+    /// Its five machine axes and pose, when all are known.
+    prev_node: Option<Node>,
+}
+
+impl Densify {
+    /// A `densify` pass for `machine`.
+    pub fn new(machine: Machine, options: Options) -> Result<Densify, String> {
+        options.check()?;
+        machine.check()?;
+        let axis_tol = options.axis_tolerance.to_radians();
+        let head = (0..2)
+            .filter(|&i| machine.rotary[i].on == Mount::Head)
+            .collect();
+        let table = (0..2)
+            .filter(|&i| machine.rotary[i].on == Mount::Table)
+            .collect();
+        Ok(Densify {
+            axes: machine.rotary_axes(),
+            machine,
+            axis_tol,
+            sin_axis_tol: axis_tol.sin(),
+            options,
+            head,
+            table,
+            prev: Joints::default(),
+            prev_node: None,
+        })
+    }
+
+    fn node(&self, joints: &Joints) -> Option<Node> {
+        let xyz = [
+            joints.get(Axis::X)?,
+            joints.get(Axis::Y)?,
+            joints.get(Axis::Z)?,
+        ];
+        let angles = [joints.get(self.axes[0])?, joints.get(self.axes[1])?];
+        Some(Node {
+            joints: *joints,
+            xyz,
+            angles,
+            pose: self.machine.forward(&xyz, angles),
+        })
+    }
+
+    fn remember(&mut self, joints: Joints) {
+        self.prev = joints;
+        self.prev_node = self.node(&joints);
+    }
+
+    fn forget(&mut self, axes: crate::ir::AxisSet) {
+        if !axes.is_empty() {
+            let mut j = self.prev;
+            j.forget(axes);
+            self.remember(j);
+        }
+    }
+
+    /// The pose of the joint-linear path at `s`.
+    fn path_pose(&self, a: &Node, b: &Node, s: f64) -> ToolPose {
+        let l = |p: f64, q: f64| p + (q - p) * s;
+        self.machine.forward(
+            &[
+                l(a.xyz[0], b.xyz[0]),
+                l(a.xyz[1], b.xyz[1]),
+                l(a.xyz[2], b.xyz[2]),
+            ],
+            [l(a.angles[0], b.angles[0]), l(a.angles[1], b.angles[1])],
+        )
+    }
+
+    fn arc(&self, a: &Node, b: &Node) -> AxisArc {
+        AxisArc::new(&a.pose.axis, &b.pose.axis, || {
+            self.path_pose(a, b, 0.5).axis.into_inner()
+        })
+    }
+
+    /// One rotary stage of the bound: `q ↦ c + Rot(θ(s)) (q - c)` (or the inverse turn).
+    fn stage(&self, jet: Jet, i: usize, a: &Node, b: &Node, inverse: bool) -> Jet {
+        let r = &self.machine.rotary[i];
+        let u = match r.axis {
+            RotaryLetter::A => Vector3::x_axis(),
+            RotaryLetter::B => Vector3::y_axis(),
+            RotaryLetter::C => Vector3::z_axis(),
+        };
+        let c = Vector3::from(r.pivot);
+        let omega = (b.angles[i] - a.angles[i]).abs().to_radians();
+        let off_axis = |q: &Vector3<f64>| {
+            let d = q - c;
+            (d - u.into_inner() * u.dot(&d)).norm()
+        };
+        // The distance from the axis changes at most at `speed`, so between the ends it
+        // stays below the meeting point of the two slopes.
+        let rho = (off_axis(&jet.ends[0]) + off_axis(&jet.ends[1]) + jet.speed) / 2.0;
+        let turn = |deg: f64, q: &Vector3<f64>| {
+            let angle = (r.direction * (deg - r.zero_offset)).to_radians();
+            let rot = Rotation3::from_axis_angle(&u, if inverse { -angle } else { angle });
+            c + rot * (q - c)
+        };
+        Jet {
+            ends: [
+                turn(a.angles[i], &jet.ends[0]),
+                turn(b.angles[i], &jet.ends[1]),
+            ],
+            speed: omega * rho + jet.speed,
+            accel: omega * omega * rho + 2.0 * omega * jet.speed + jet.accel,
+        }
+    }
+
+    /// Bounds of `|tip''(s)|` and `|axis''(s)|` along the joint-linear path from `a` to `b`
+    /// (the same chain as the machine's forward kinematics: head rotaries outermost first,
+    /// then the linear axes, then the table rotaries undone base first).
+    fn curvature_bounds(&self, a: &Node, b: &Node) -> (f64, f64) {
+        let mut jet = Jet {
+            ends: [Vector3::zeros(); 2],
+            speed: 0.0,
+            accel: 0.0,
+        };
+        for &i in self.head.iter().rev() {
+            jet = self.stage(jet, i, a, b, false);
+        }
+        let x0 = Vector3::from(a.xyz);
+        let x1 = Vector3::from(b.xyz);
+        jet.ends = [jet.ends[0] + x0, jet.ends[1] + x1];
+        jet.speed += (x1 - x0).norm();
+        for &i in &self.table {
+            jet = self.stage(jet, i, a, b, true);
+        }
+        let omega: f64 = (0..2)
+            .map(|i| (b.angles[i] - a.angles[i]).abs().to_radians())
+            .sum();
+        (jet.accel, omega * omega)
+    }
+
+    /// Whether the joint-linear path from `a` to `b` stays within tolerance of the
+    /// programmed segment (see the module documentation for why this is a proof).
+    fn within(&self, a: &Node, b: &Node) -> bool {
+        let tol = self.options.tip_tolerance;
+        let seg = Segment::new(&a.pose.tip, &b.pose.tip);
+        let arc = self.arc(a, b);
+        let (tip_accel, axis_accel) = self.curvature_bounds(a, b);
+        // (start, end, tip deviation at both, axis cone distance at both, level)
+        let mut stack =
+            [(0.0f64, 1.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0u8); CHECK_LEVELS as usize + 2];
+        let mut len = 1;
+        while len > 0 {
+            len -= 1;
+            let (s0, s1, t0, t1, c0, c1, level) = stack[len];
+            let q = (s1 - s0) * (s1 - s0) / 8.0;
+            if t0.max(t1) + tip_accel * q <= tol && c0.max(c1) + axis_accel * q <= self.sin_axis_tol
+            {
+                continue;
+            }
+            if level >= CHECK_LEVELS {
+                return false;
+            }
+            let sm = 0.5 * (s0 + s1);
+            let pose = self.path_pose(a, b, sm);
+            let tm = seg.distance(&pose.tip);
+            let (angle, cm) = arc.deviation(&pose.axis);
+            if tm > tol || angle > self.axis_tol {
+                return false;
+            }
+            stack[len] = (sm, s1, tm, t1, cm, c1, level + 1);
+            stack[len + 1] = (s0, sm, t0, tm, c0, cm, level + 1);
+            len += 2;
+        }
+        true
+    }
+
+    /// The orientation for `axis` nearest the interpolated rotary values `target`.
+    fn orientation(&self, axis: Unit<Vector3<f64>>, target: [f64; 2]) -> [f64; 2] {
+        let m = &self.machine;
+        let sols = m.inverse(axis);
+        let singular = sols.iter().any(|o| o.free.is_some())
+            || (!sols.is_empty() && m.singularity_distance(axis) < SINGULAR_DEG);
+        if singular {
+            let k = m.singular_rotary(axis);
+            let o = m.hold(axis, k, target[k]);
+            return [
+                nearest_turn(o.angles[0], target[0]),
+                nearest_turn(o.angles[1], target[1]),
+            ];
+        }
+        let mut best: Option<([f64; 2], f64)> = None;
+        for o in &sols {
+            let a = [
+                nearest_turn(o.angles[0], target[0]),
+                nearest_turn(o.angles[1], target[1]),
+            ];
+            let cost = (a[0] - target[0]).powi(2) + (a[1] - target[1]).powi(2);
+            if best.is_none_or(|(_, c)| cost < c) {
+                best = Some((a, cost));
+            }
+        }
+        // Out of the axis pair's reach (cannot happen between two reachable poses on
+        // the machines modelled): keep the interpolated angles, the tip stays exact.
+        best.map_or(target, |(a, _)| a)
+    }
+
+    /// The position at the programmed midpoint between `a` and `b`.
+    fn midpoint(&self, a: &Node, b: &Node) -> Node {
+        let tip = a.pose.tip + (b.pose.tip - a.pose.tip) * 0.5;
+        let axis = self.arc(a, b).slerp(0.5);
+        let target = [
+            0.5 * (a.angles[0] + b.angles[0]),
+            0.5 * (a.angles[1] + b.angles[1]),
+        ];
+        let angles = self.orientation(axis, target);
+        let xyz = self.machine.linear(&tip, angles);
+        let mut joints = b.joints;
+        for ax in b.joints.known.iter() {
+            match a.joints.get(ax) {
+                Some(v) => joints.values[ax.index()] = 0.5 * (v + b.joints.values[ax.index()]),
+                None => joints.forget(std::iter::once(ax).collect()),
+            }
+        }
+        joints.set(Axis::X, xyz[0]);
+        joints.set(Axis::Y, xyz[1]);
+        joints.set(Axis::Z, xyz[2]);
+        joints.set(self.axes[0], angles[0]);
+        joints.set(self.axes[1], angles[1]);
+        Node {
+            joints,
+            xyz,
+            angles,
+            pose: self.machine.forward(&xyz, angles),
+        }
+    }
+
+    /// Emits the pieces from `a` to `b` (the last one only when `last` is false: the
+    /// caller emits the original block there). `depth` halvings made so far.
+    #[allow(clippy::too_many_arguments)]
+    fn refine(
+        &self,
+        motion: &Motion,
+        span: Span,
+        a: &Node,
+        b: &Node,
+        depth: u32,
+        last: bool,
+        hit_limit: &mut bool,
+        out: &mut Output<'_>,
+    ) {
+        let ok = self.within(a, b);
+        if ok || depth >= self.options.max_depth {
+            *hit_limit |= !ok;
+            if !last {
+                let mut piece = motion.clone();
+                piece.target = Target::Joints(b.joints);
+                out.push(Block::new(span, BlockKind::Motion(piece)));
+            }
+            return;
+        }
+        let m = self
+            .turn_on_the_spot(a, b)
+            .unwrap_or_else(|| self.midpoint(a, b));
+        self.refine(motion, span, a, &m, depth + 1, false, hit_limit, out);
+        self.refine(motion, span, &m, b, depth + 1, last, hit_limit, out);
+    }
+
+    /// At a singular end the free rotary's value is arbitrary, and the other end's branch
+    /// may need another one (`ik` held the previous angle there). Halving cannot fix that:
+    /// every piece next to the singular end would still swing the free rotary. So it turns
+    /// first (or last), on the spot: the node at the singular end's pose with the free
+    /// rotary at the other end's value.
+    fn turn_on_the_spot(&self, a: &Node, b: &Node) -> Option<Node> {
+        let same_pose = (a.pose.tip - b.pose.tip).norm() <= 1e-9
+            && a.pose.axis.dot(&b.pose.axis) >= 1.0 - 1e-15;
+        if same_pose {
+            return None;
+        }
+        for (end, other) in [(a, b), (b, a)] {
+            let axis = end.pose.axis;
+            if self.machine.singularity_distance(axis) >= SINGULAR_DEG {
+                continue;
+            }
+            let k = self.machine.singular_rotary(axis);
+            let want = other.angles[k];
+            if (end.angles[k] - want).abs() <= 1e-9 {
+                continue;
+            }
+            let held = self.machine.hold(axis, k, want).angles;
+            let mut angles = end.angles;
+            angles[k] = want;
+            angles[1 - k] = nearest_turn(held[1 - k], end.angles[1 - k]);
+            let xyz = self.machine.linear(&end.pose.tip, angles);
+            let mut joints = end.joints;
+            joints.set(Axis::X, xyz[0]);
+            joints.set(Axis::Y, xyz[1]);
+            joints.set(Axis::Z, xyz[2]);
+            joints.set(self.axes[0], angles[0]);
+            joints.set(self.axes[1], angles[1]);
+            return Some(Node {
+                joints,
+                xyz,
+                angles,
+                pose: self.machine.forward(&xyz, angles),
+            });
+        }
+        None
+    }
+}
+
+impl Pass for Densify {
+    fn name(&self) -> &'static str {
+        "densify"
+    }
+
+    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+        match &block.kind {
+            BlockKind::Motion(m) => {
+                let Target::Joints(end) = m.target else {
+                    // A pose this late means the joints are not known.
+                    self.remember(Joints::default());
+                    out.push(block);
+                    return;
+                };
+                let checked = match m.kind {
+                    MotionKind::Linear => true,
+                    MotionKind::Rapid => self.options.rapids,
+                    MotionKind::Arc(_) => false,
+                } && !m.machine_frame;
+                let machine_frame = m.machine_frame.then_some(m.written);
+                let end_node = self.node(&end);
+                if checked
+                    && let (Some(a), Some(b)) = (self.prev_node, end_node)
+                    && !self.within(&a, &b)
+                {
+                    let mut hit_limit = false;
+                    if self.options.max_depth == 0 {
+                        hit_limit = true;
+                    } else {
+                        let mid = self
+                            .turn_on_the_spot(&a, &b)
+                            .unwrap_or_else(|| self.midpoint(&a, &b));
+                        self.refine(m, block.span, &a, &mid, 1, false, &mut hit_limit, out);
+                        self.refine(m, block.span, &mid, &b, 1, true, &mut hit_limit, out);
+                    }
+                    if hit_limit {
+                        out.diag(
+                            Diagnostic::warning(
+                                "densify::depth",
+                                format!(
+                                    "the move is still off the programmed path after {} halvings",
+                                    self.options.max_depth
+                                ),
+                            )
+                            .at_span(block.span)
+                            .with_help(
+                                "the rotaries swing far for this move (a singularity or a branch change?); raise max_depth or the tolerances, or check the ik choices",
+                            ),
+                        );
+                    }
+                }
+                self.prev = end;
+                self.prev_node = end_node;
+                if let Some(written) = machine_frame {
+                    self.forget(written);
+                }
+            }
+            BlockKind::Command(c) => self.forget(c.clobbers),
+            BlockKind::Verbatim(v) => self.forget(v.clobbers),
+            _ => {}
+        }
+        out.push(block);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn machine(name: &str) -> Machine {
+        let path = format!("{}/passes/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+        let text = std::fs::read_to_string(path).expect("preset file");
+        crate::preset::Preset::from_toml(&text)
+            .expect("preset")
+            .machine
+            .expect("machine")
+    }
+
+    fn node(d: &Densify, xyz: [f64; 3], angles: [f64; 2]) -> Node {
+        let mut j = Joints::default();
+        j.set(Axis::X, xyz[0]);
+        j.set(Axis::Y, xyz[1]);
+        j.set(Axis::Z, xyz[2]);
+        j.set(d.axes[0], angles[0]);
+        j.set(d.axes[1], angles[1]);
+        d.node(&j).expect("five axes")
+    }
+
+    /// The bound's chain is the forward kinematics, and it bounds the real curvature.
+    #[test]
+    fn curvature_bound_holds() {
+        for name in ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"] {
+            let d = Densify::new(machine(name), Options::default()).expect("pass");
+            let a = node(&d, [10.0, -20.0, 30.0], [20.0, -40.0]);
+            let b = node(&d, [-35.0, 5.0, 12.0], [-15.0, 75.0]);
+            let (tip_bound, axis_bound) = d.curvature_bounds(&a, &b);
+            let h = 1e-3;
+            let mut worst: f64 = 0.0;
+            let mut worst_axis: f64 = 0.0;
+            for k in 1..999 {
+                let s = k as f64 * h;
+                let p = |s| d.path_pose(&a, &b, s);
+                let acc =
+                    (p(s + h).tip.coords - 2.0 * p(s).tip.coords + p(s - h).tip.coords) / (h * h);
+                let acc_axis = (p(s + h).axis.into_inner() - 2.0 * p(s).axis.into_inner()
+                    + p(s - h).axis.into_inner())
+                    / (h * h);
+                worst = worst.max(acc.norm());
+                worst_axis = worst_axis.max(acc_axis.norm());
+            }
+            assert!(worst <= tip_bound * 1.0001, "{name}: {worst} > {tip_bound}");
+            assert!(worst_axis <= axis_bound * 1.0001, "{name}");
+            // Not uselessly loose either.
+            assert!(tip_bound < 20.0 * worst, "{name}: {tip_bound} vs {worst}");
+            assert_eq!(d.curvature_bounds(&a, &a).1, 0.0);
+        }
+    }
+
+    #[test]
+    fn arc_deviation() {
+        let z = Vector3::z_axis();
+        let x = Vector3::x_axis();
+        let arc = AxisArc::new(&z, &x, || unreachable!());
+        let mid = arc.slerp(0.5);
+        assert!((mid.x - mid.z).abs() < 1e-15 && mid.y == 0.0);
+        let (a, _) = arc.deviation(&Vector3::new(1.0, 0.01, 1.0).normalize());
+        assert!((a - (0.01f64 / 2f64.sqrt()).atan()).abs() < 1e-12);
+        // Beyond the end: the angle to the end point.
+        let (a, _) = arc.deviation(&Vector3::new(1.0, 0.0, -0.1).normalize());
+        assert!((a - 0.1f64.atan()).abs() < 1e-12);
+        // Antiparallel ends: the plane of the path's midpoint.
+        let arc = AxisArc::new(&z, &-z, Vector3::y);
+        assert!((arc.slerp(0.5).into_inner() - Vector3::y()).norm() < 1e-12);
+        // Equal ends.
+        let arc = AxisArc::new(&z, &z, || unreachable!());
+        assert_eq!(arc.slerp(0.5), z);
+        let (a, c) = arc.deviation(&Vector3::new(0.1, 0.0, 1.0).normalize());
+        assert!((a - 0.1f64.atan()).abs() < 1e-12 && (c - a.sin()).abs() < 1e-12);
+    }
+}
