@@ -64,7 +64,7 @@ impl JointPlot {
 
     fn record(&mut self, joints: Joints) {
         self.seen += 1;
-        if self.seen % self.stride != 0 {
+        if !self.seen.is_multiple_of(self.stride) {
             return;
         }
         self.samples.push((self.seconds, joints));

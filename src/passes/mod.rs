@@ -72,6 +72,9 @@ pub trait Pass: Send {
     fn finish(&mut self, _out: &mut Output<'_>) {}
 }
 
+/// Builds a pass from its options table and the pipeline context.
+pub type BuildFn = fn(&toml::Table, &Context<'_>) -> Result<Box<dyn Pass>, String>;
+
 /// What the registry knows about a pass.
 pub struct PassInfo {
     /// Kebab-case name used in presets and on the command line.
@@ -79,7 +82,7 @@ pub struct PassInfo {
     /// One-line description.
     pub summary: &'static str,
     /// Builds the pass from its options table and the pipeline context.
-    pub build: fn(&toml::Table, &Context<'_>) -> Result<Box<dyn Pass>, String>,
+    pub build: BuildFn,
     /// The default options, as TOML.
     pub defaults: fn() -> String,
 }
