@@ -1,5 +1,6 @@
 //! Frontends: source text to IR blocks, one statement at a time.
 
+pub mod cl;
 pub mod gcode;
 
 use std::io::{self, BufRead};
