@@ -274,19 +274,25 @@ fn run(
         Ok(b) => b,
         Err(e) => return usage(e),
     };
-    let from = args.from.unwrap_or_else(|| from_extension(&args.input));
-    match from {
-        FromArg::Gcode => {}
-        FromArg::Cl => {
-            return usage(
-                "the APT/CL frontend is not part of this version yet; give G-code input (--from gcode)",
-            );
-        }
+    let source = match args.from.unwrap_or_else(|| from_extension(&args.input)) {
+        FromArg::Gcode => Source::Gcode,
+        FromArg::Cl => Source::Cl,
         FromArg::Hpgl => {
             return usage(
-                "the HPGL frontend is not part of this version yet; give G-code input (--from gcode)",
+                "the HPGL frontend is not part of this version yet; give G-code (--from gcode) or CL data (--from cl)",
             );
         }
+    };
+    if source == Source::Cl && !builder.preset_ref().passes.iter().any(|p| p.name == "ik") {
+        let machines: Vec<&str> = BUILTIN
+            .iter()
+            .filter(|(n, _)| Preset::builtin(n).is_some_and(|p| p.machine.is_some()))
+            .map(|(n, _)| *n)
+            .collect();
+        return usage(format!(
+            "APT CL data gives tool poses, which need a machine and the `ik` pass: use a preset with a [machine] table ({})",
+            machines.join(", ")
+        ));
     }
     let mut pipeline = match builder.build() {
         Ok(p) => p,
@@ -326,10 +332,10 @@ fn run(
     }
 
     let result = if check_only {
-        pipeline.run_gcode(input, io::sink(), &mut |d| printer.print(d))
+        pipeline.run_source(source, input, io::sink(), &mut |d| printer.print(d))
     } else {
         match output.filter(|o| o.as_os_str() != "-") {
-            None => pipeline.run_gcode(input, io::stdout(), &mut |d| printer.print(d)),
+            None => pipeline.run_source(source, input, io::stdout(), &mut |d| printer.print(d)),
             Some(path) => {
                 if !stdin_input && same_file(&args.input, path) {
                     return usage(format!(
@@ -339,7 +345,7 @@ fn run(
                 }
                 return write_atomically(
                     path,
-                    |out, printer| pipeline.run_gcode(input, out, &mut |d| printer.print(d)),
+                    |out, printer| pipeline.run_source(source, input, out, &mut |d| printer.print(d)),
                     &mut printer,
                 );
             }

@@ -188,8 +188,39 @@ impl Pipeline {
         output: impl Write + Send,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Result<Summary, Diagnostic> {
+        self.run_source(Source::Gcode, input, output, on_diag)
+    }
+
+    /// Reads `input` in the language `source` and writes the preset's output format to
+    /// `output`; otherwise as [`Pipeline::run_gcode`].
+    pub fn run_source(
+        &mut self,
+        source: Source,
+        input: impl BufRead,
+        output: impl Write + Send,
+        on_diag: &mut dyn FnMut(Diagnostic),
+    ) -> Result<Summary, Diagnostic> {
+        match source {
+            Source::Gcode => {
+                let mut front = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
+                self.run_threaded(&mut front, output, on_diag)
+            }
+            Source::Cl => {
+                let mut front = front::cl::Parser::new(input, self.preset.cl_input.clone());
+                self.run_threaded(&mut front, output, on_diag)
+            }
+        }
+    }
+
+    /// Runs `front` through the passes and the preset's backend into `output`, with the
+    /// passes and the backend on a second thread.
+    pub fn run_threaded(
+        &mut self,
+        front: &mut dyn Frontend,
+        output: impl Write + Send,
+        on_diag: &mut dyn FnMut(Diagnostic),
+    ) -> Result<Summary, Diagnostic> {
         const BATCH: usize = 1024;
-        let mut front = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
         let preset = &self.preset;
         let stages = &mut self.stages;
         let progress = &mut self.progress;
@@ -291,8 +322,8 @@ impl Pipeline {
                 self.run(&mut front, back, on_diag)
             }
             Source::Cl => {
-                on_diag(Diagnostic::error("pipeline::source", "CL input is not wired yet"));
-                Summary { errors: 1, ..Summary::default() }
+                let mut front = front::cl::Parser::new(input, self.preset.cl_input.clone());
+                self.run(&mut front, back, on_diag)
             }
         }
     }

@@ -47,6 +47,8 @@ pub struct Preset {
     pub machine: Option<Machine>,
     /// G-code frontend options.
     pub gcode_input: front::gcode::Options,
+    /// APT CL frontend options.
+    pub cl_input: front::cl::Options,
     /// Plain G-code backend options.
     pub gcode: gcode::Options,
     /// RepRapFirmware backend options.

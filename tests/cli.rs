@@ -553,7 +553,7 @@ fn unknown_pass_lists_the_passes() {
 }
 
 #[test]
-fn apt_and_hpgl_inputs_are_refused_clearly() {
+fn hpgl_input_is_refused_and_cl_needs_a_machine() {
     let dir = dir_with(&[
         ("part.apt", "GOTO/1,2,3\n"),
         ("part.cl", "GOTO/1,2,3\n"),
@@ -561,17 +561,17 @@ fn apt_and_hpgl_inputs_are_refused_clearly() {
         ("board.plt", "IN;PU0,0;\n"),
         ("in.gcode", GOOD),
     ]);
-    for (file, frontend) in [
-        ("part.apt", "APT"),
-        ("part.cl", "APT"),
-        ("board.hpgl", "HPGL"),
-        ("board.plt", "HPGL"),
+    for (file, frontend, why) in [
+        ("part.apt", "APT", "need a machine"),
+        ("part.cl", "APT", "need a machine"),
+        ("board.hpgl", "HPGL", "not part of this version"),
+        ("board.plt", "HPGL", "not part of this version"),
     ] {
         let out = run_in(dir.path(), &["run", file, "-o", "out.gcode"], None);
         assert_exit(&out, 2);
         let err = stderr(&out);
         assert!(err.contains(frontend), "{file}: {err}");
-        assert!(err.contains("not part of this version"), "{file}: {err}");
+        assert!(err.contains(why), "{file}: {err}");
         assert!(!dir.path().join("out.gcode").exists());
         let out = run_in(dir.path(), &["check", file], None);
         assert_exit(&out, 2);
