@@ -489,8 +489,30 @@ fn from_extension(path: &Path) -> FromArg {
     match ext.as_str() {
         "cl" | "apt" | "cls" | "clsf" => FromArg::Cl,
         "hpgl" | "plt" | "hpg" => FromArg::Hpgl,
+        // NX and other CAM systems write CL listings as .txt: look at the text.
+        "txt" | "lst" | "" if looks_like_cl(path) => FromArg::Cl,
         _ => FromArg::Gcode,
     }
+}
+
+/// Whether the start of a file reads like APT CL data (`GOTO/`, `TOOL PATH/`, ...).
+fn looks_like_cl(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = Vec::new();
+    let Ok(f) = File::open(path) else {
+        return false;
+    };
+    if f.take(16 * 1024).read_to_end(&mut head).is_err() {
+        return false;
+    }
+    const WORDS: [&str; 12] = [
+        "GOTO/", "FROM/", "PARTNO", "TOOL PATH/", "MULTAX", "FEDRAT/", "TLAXIS/", "UNITS/",
+        "CUTTER/", "SPINDL/", "LOADTL/", "TLDATA/",
+    ];
+    String::from_utf8_lossy(&head).lines().any(|l| {
+        let l = l.trim_start().to_ascii_uppercase();
+        WORDS.iter().any(|w| l.starts_with(w))
+    })
 }
 
 fn attach_progress(pipeline: &mut Pipeline, input: &Path) {
