@@ -6,7 +6,10 @@
 
 pub mod densify;
 pub mod feed;
+pub mod ik;
+pub mod limits;
 pub mod stats;
+pub mod unwrap_rotary;
 pub mod verify;
 
 use serde::de::DeserializeOwned;
@@ -88,7 +91,15 @@ pub struct PassInfo {
 }
 
 /// Every pass, in the order `ncpost passes` lists them.
-pub const REGISTRY: &[PassInfo] = &[verify::INFO, stats::INFO, densify::INFO, feed::INFO];
+pub const REGISTRY: &[PassInfo] = &[
+    verify::INFO,
+    stats::INFO,
+    ik::INFO,
+    unwrap_rotary::INFO,
+    densify::INFO,
+    feed::INFO,
+    limits::INFO,
+];
 
 /// The registry entry for `name`.
 pub fn lookup(name: &str) -> Option<&'static PassInfo> {

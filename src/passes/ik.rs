@@ -1,0 +1,558 @@
+//! `ik`: tool poses to joint values for two-rotary machines (limits, continuity, preference).
+//!
+//! Every motion with a [`Target::Pose`] becomes a [`Target::Joints`] with X, Y, Z and both
+//! rotaries set. The rotary values come from the closed-form inverse kinematics
+//! ([`Machine::inverse`], up to two orientations), each angle taken at the whole turn that
+//! suits it: nearest the previous value of a cyclic axis, inside `[min, max]` (nearest the
+//! previous value) for a limited one. Orientations a limited axis cannot reach are dropped;
+//! of the rest the one with the smallest largest rotary change from the previous joints
+//! wins (on a tie, the smaller sum of both changes), then the machine's preferred sign
+//! (first rotary with a preference), then the first. Without previous rotary values
+//! (program start, after homing) the preference decides. X, Y, Z follow from [`Machine::linear`], so FK(joints) reproduces the pose
+//! exactly outside the singularity cone.
+//!
+//! # Singularities
+//! Within `singularity_cone` degrees of an orientation where one rotary stops mattering
+//! (a cradle's C table when the tool stands vertical), that rotary keeps its previous
+//! value and the other one turns the tool ([`Machine::hold`]). Leaving the cone may then
+//! need a large swing of the held rotary; when that exceeds `singular_jump` in a cutting
+//! move the block gets the warning `ik::singular-swing` (`densify` splits the move so the
+//! tip follows the programmed line while the rotary swings).
+//!
+//! # Unreachable poses and flips
+//! A pose no orientation reaches within the limits is the error `ik::unreachable`; the
+//! block is dropped and the pass goes on, so every such line is reported. When the
+//! orientation continuing the path leaves the limits while another one is reachable, the
+//! rotaries must flip to the other solution; in a cutting move with a rotary change above
+//! `max_cutting_jump` that would drag the tool through the part, so it is the error
+//! `ik::flip`, or with `on_flip = "retract"` a retract along the tool axis (a linear move
+//! at the block's feed: the tool may still be in the material), a rapid turning the
+//! rotaries above the new point and a linear plunge onto it, with the warning `ik::retract`.
+//!
+//! Joint moves, commands, comments and offset blocks pass through; a command or line that
+//! clobbers axes makes their values unknown, so the next pose is chosen by preference
+//! again. An arc to a pose is the error `ik::arc` (the CL frontend cuts arcs into lines).
+
+use nalgebra::{Unit, Vector3};
+use serde::{Deserialize, Serialize};
+
+use super::{Output, Pass, PassInfo};
+use crate::diag::Diagnostic;
+use crate::ir::{
+    Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Pose, Target,
+};
+use crate::machine::{Machine, Prefer};
+
+/// What `ik` does where the path must flip to the other solution in a cutting move.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OnFlip {
+    /// Report the error `ik::flip`.
+    #[default]
+    Error,
+    /// Retract along the tool axis, turn the rotaries, plunge back (warning `ik::retract`).
+    Retract,
+}
+
+/// Options of `ik`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Options {
+    /// Within this angle (degrees) of a singular orientation the free rotary keeps its
+    /// previous value.
+    pub singularity_cone: f64,
+    /// A swing of the held rotary larger than this (degrees) when the path leaves the
+    /// singularity cone in a cutting move is reported (`ik::singular-swing`).
+    pub singular_jump: f64,
+    /// What to do when the path must flip to the other solution in a cutting move.
+    pub on_flip: OnFlip,
+    /// How far (mm, along the tool axis) a flip retracts before turning.
+    pub retract_distance: f64,
+    /// Largest rotary change (degrees) a cutting move may make to reach the other
+    /// solution before it counts as a flip. The default, 90, lets any move that stays on
+    /// its branch through, while a branch change (about 180 degrees of the cyclic axis)
+    /// is caught.
+    pub max_cutting_jump: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options {
+            singularity_cone: 0.01,
+            singular_jump: 10.0,
+            on_flip: OnFlip::Error,
+            retract_distance: 20.0,
+            max_cutting_jump: 90.0,
+        }
+    }
+}
+
+impl Options {
+    fn check(&self) -> Result<(), String> {
+        if !(self.singularity_cone.is_finite() && (0.0..90.0).contains(&self.singularity_cone)) {
+            return Err("singularity_cone must be at least 0 and below 90 degrees".into());
+        }
+        if !(self.singular_jump.is_finite() && self.singular_jump >= 0.0) {
+            return Err("singular_jump must be a number of degrees >= 0".into());
+        }
+        if !(self.retract_distance.is_finite() && self.retract_distance > 0.0) {
+            return Err("retract_distance must be a positive number of millimetres".into());
+        }
+        if !(self.max_cutting_jump.is_finite() && self.max_cutting_jump > 0.0) {
+            return Err("max_cutting_jump must be a positive number of degrees".into());
+        }
+        Ok(())
+    }
+}
+
+/// Registry entry.
+pub const INFO: PassInfo = PassInfo {
+    name: "ik",
+    summary: "tool poses to joint values: both closed-form solutions, chosen by limits, continuity and preferred sign; singularities held, unreachable poses and flips reported",
+    build: |t, ctx| {
+        let machine = ctx.require_machine("ik")?;
+        Ok(Box::new(Ik::new(machine.clone(), super::options(t)?)?))
+    },
+    defaults: || super::to_toml(&Options::default()),
+};
+
+/// Slack on rotary limits, degrees: an angle this close to a limit counts as inside.
+const LIMIT_SLACK: f64 = 1e-9;
+
+/// Costs closer than this (degrees) are a tie, decided by the preferred sign.
+const TIE: f64 = 1e-9;
+
+/// The angle `v + 360 k` nearest `target`.
+fn near_turn(v: f64, target: f64) -> f64 {
+    v + 360.0 * ((target - v) / 360.0).round()
+}
+
+/// The rotary values chosen for a pose.
+#[derive(Debug, Clone, Copy)]
+struct Choice {
+    /// Joint values of the two rotaries, listing order.
+    angles: [f64; 2],
+    /// The rotary held at its previous value (singularity).
+    held: Option<usize>,
+    /// The path flips to the other solution: the rotaries the continuous solution would
+    /// need (out of limits) and the largest change of the chosen one, degrees.
+    flip: Option<([f64; 2], f64)>,
+}
+
+/// The `ik` pass.
+pub struct Ik {
+    machine: Machine,
+    options: Options,
+    axes: [Axis; 2],
+    /// The joints after the last emitted block.
+    prev: Joints,
+    /// The rotary held at a singularity by the last pose block.
+    held: Option<usize>,
+}
+
+impl Ik {
+    /// An `ik` pass for `machine`.
+    pub fn new(machine: Machine, options: Options) -> Result<Ik, String> {
+        options.check()?;
+        machine.check()?;
+        let axes = machine.rotary_axes();
+        Ok(Ik {
+            machine,
+            options,
+            axes,
+            prev: Joints::default(),
+            held: None,
+        })
+    }
+
+    fn prev_angles(&self) -> [Option<f64>; 2] {
+        [self.prev.get(self.axes[0]), self.prev.get(self.axes[1])]
+    }
+
+    /// Rotary `i` at `v + 360 k` inside its limits, nearest `prev` (nearest `v` without
+    /// one); `None` when no turn of `v` is inside.
+    fn in_limits(&self, i: usize, v: f64, prev: Option<f64>) -> Option<f64> {
+        match self.machine.limits(self.axes[i]) {
+            None => Some(prev.map_or(v, |p| near_turn(v, p))),
+            Some((lo, hi)) => {
+                let kmin = ((lo - LIMIT_SLACK - v) / 360.0).ceil();
+                let kmax = ((hi + LIMIT_SLACK - v) / 360.0).floor();
+                if kmin > kmax {
+                    return None;
+                }
+                let want = prev.map_or(0.0, |p| ((p - v) / 360.0).round());
+                Some(v + 360.0 * want.clamp(kmin, kmax))
+            }
+        }
+    }
+
+    /// How far `angles` is from the previous joints (known rotaries only): the largest
+    /// change, then the sum of both (so of two orientations with the same largest change
+    /// the one that moves the other rotary less wins).
+    fn cost(&self, angles: [f64; 2], prev: [Option<f64>; 2]) -> (f64, f64) {
+        (0..2)
+            .filter_map(|i| prev[i].map(|p| (angles[i] - p).abs()))
+            .fold((0.0, 0.0), |(m, s), d| (f64::max(m, d), s + d))
+    }
+
+    /// Whether cost `a` is clearly below cost `b`; `None` on a tie.
+    fn less(a: (f64, f64), b: (f64, f64)) -> Option<bool> {
+        if (a.0 - b.0).abs() > TIE {
+            Some(a.0 < b.0)
+        } else if (a.1 - b.1).abs() > TIE {
+            Some(a.1 < b.1)
+        } else {
+            None
+        }
+    }
+
+    /// Whether `angles` has the sign the machine prefers (first rotary with a preference).
+    fn preferred(&self, angles: [f64; 2]) -> bool {
+        for (i, r) in self.machine.rotary.iter().enumerate() {
+            match r.prefer {
+                Prefer::Positive => return angles[i] >= -LIMIT_SLACK,
+                Prefer::Negative => return angles[i] <= LIMIT_SLACK,
+                Prefer::None => {}
+            }
+        }
+        false
+    }
+
+    /// The rotary values for tool axis `axis`; `None` when no orientation is reachable.
+    fn choose(&self, axis: Unit<Vector3<f64>>, cutting: bool) -> Option<Choice> {
+        let prev = self.prev_angles();
+        let sols = self.machine.inverse(axis);
+        let free = sols.iter().find_map(|o| o.free);
+        if free.is_some() || self.machine.singularity_distance(axis) < self.options.singularity_cone
+        {
+            let k = free.unwrap_or_else(|| self.machine.singular_rotary(axis));
+            if let Some(pk) = prev[k] {
+                let o = self.machine.hold(axis, k, pk);
+                let j = 1 - k;
+                if let Some(v) = self.in_limits(j, o.angles[j], prev[j]) {
+                    let mut angles = [0.0; 2];
+                    angles[k] = pk;
+                    angles[j] = v;
+                    return Some(Choice {
+                        angles,
+                        held: Some(k),
+                        flip: None,
+                    });
+                }
+            }
+        }
+        // (angles, cost) of the best reachable orientation, and of the nearest one
+        // ignoring the limits.
+        let mut best: Option<([f64; 2], (f64, f64))> = None;
+        let mut nearest: Option<([f64; 2], (f64, f64))> = None;
+        for o in &sols {
+            let unlimited =
+                [0, 1].map(|i| prev[i].map_or(o.angles[i], |p| near_turn(o.angles[i], p)));
+            let c = self.cost(unlimited, prev);
+            if nearest.is_none_or(|(_, nc)| Self::less(c, nc) == Some(true)) {
+                nearest = Some((unlimited, c));
+            }
+            let (Some(a0), Some(a1)) = (
+                self.in_limits(0, o.angles[0], prev[0]),
+                self.in_limits(1, o.angles[1], prev[1]),
+            ) else {
+                continue;
+            };
+            let angles = [a0, a1];
+            let c = self.cost(angles, prev);
+            let better = match best {
+                None => true,
+                Some((b, bc)) => Self::less(c, bc)
+                    .unwrap_or_else(|| self.preferred(angles) && !self.preferred(b)),
+            };
+            if better {
+                best = Some((angles, c));
+            }
+        }
+        let (angles, cost) = best?;
+        let mut flip = None;
+        if let Some((near, near_cost)) = nearest
+            && cutting
+            && prev.iter().all(Option::is_some)
+            && near_cost.0 < cost.0 - TIE
+            && cost.0 > self.options.max_cutting_jump
+        {
+            flip = Some((near, cost.0));
+        }
+        Some(Choice {
+            angles,
+            held: None,
+            flip,
+        })
+    }
+
+    /// How far (degrees) `axis` is from the nearest orientation the rotaries reach within
+    /// their limits; `None` when the machine has no limited rotary to measure against.
+    fn miss_angle(&self, axis: Unit<Vector3<f64>>) -> Option<f64> {
+        let mut best: Option<f64> = None;
+        for i in 0..2 {
+            let Some((lo, hi)) = self.machine.limits(self.axes[i]) else {
+                continue;
+            };
+            for bound in [lo, hi] {
+                let o = self.machine.hold(axis, i, bound);
+                let j = 1 - i;
+                let others: Vec<f64> = match self.in_limits(j, o.angles[j], None) {
+                    Some(v) => vec![v],
+                    None => match self.machine.limits(self.axes[j]) {
+                        Some((l, h)) => vec![l, h],
+                        None => vec![o.angles[j]],
+                    },
+                };
+                for v in others {
+                    let mut angles = [0.0; 2];
+                    angles[i] = bound;
+                    angles[j] = v;
+                    let reached = self.machine.forward(&[0.0; 3], angles).axis;
+                    let deg = reached.dot(&axis).clamp(-1.0, 1.0).acos().to_degrees();
+                    if best.is_none_or(|b| deg < b) {
+                        best = Some(deg);
+                    }
+                }
+            }
+        }
+        best
+    }
+
+    /// The rotaries' ranges, for messages: `A -90..135 deg, C unlimited`.
+    fn ranges(&self) -> String {
+        let parts: Vec<String> = (0..2)
+            .map(|i| match self.machine.limits(self.axes[i]) {
+                Some((lo, hi)) => format!("{} {lo}..{hi} deg", self.axes[i].letter()),
+                None => format!("{} unlimited", self.axes[i].letter()),
+            })
+            .collect();
+        parts.join(", ")
+    }
+
+    /// The joint vector for the rotaries at `angles` with the tip on `tip`, carrying the
+    /// other known axes.
+    fn joints_at(&self, tip: &nalgebra::Point3<f64>, angles: [f64; 2]) -> Joints {
+        let xyz = self.machine.linear(tip, angles);
+        let mut j = self.prev;
+        j.set(Axis::X, xyz[0]);
+        j.set(Axis::Y, xyz[1]);
+        j.set(Axis::Z, xyz[2]);
+        j.set(self.axes[0], angles[0]);
+        j.set(self.axes[1], angles[1]);
+        j
+    }
+
+    fn written(&self) -> AxisSet {
+        let mut w = AxisSet::XYZ;
+        w.insert(self.axes[0]);
+        w.insert(self.axes[1]);
+        w
+    }
+
+    /// The previous X, Y, Z and rotaries, when all five are known.
+    fn prev_five(&self) -> Option<([f64; 3], [f64; 2])> {
+        let p = &self.prev;
+        Some((
+            [p.get(Axis::X)?, p.get(Axis::Y)?, p.get(Axis::Z)?],
+            [p.get(self.axes[0])?, p.get(self.axes[1])?],
+        ))
+    }
+
+    fn pose_motion(&mut self, mut block: Block, pose: Pose, out: &mut Output<'_>) {
+        let BlockKind::Motion(m) = &mut block.kind else {
+            return;
+        };
+        if let MotionKind::Arc(_) = m.kind {
+            out.diag(
+                Diagnostic::error(
+                    "ik::arc",
+                    "a circular move to a tool pose cannot be turned into joint values",
+                )
+                .at_span(block.span)
+                .with_help("cut the arc into straight moves before `ik` (the CL frontend does this for CIRCLE)"),
+            );
+            return;
+        }
+        let cutting = !matches!(m.kind, MotionKind::Rapid);
+        let Some(choice) = self.choose(pose.axis, cutting) else {
+            let a = pose.axis;
+            let miss = match self.miss_angle(a) {
+                Some(d) => format!(", {d:.3} deg from the nearest orientation they reach"),
+                None => String::new(),
+            };
+            out.diag(
+                Diagnostic::error(
+                    "ik::unreachable",
+                    format!(
+                        "tool axis ({:.6}, {:.6}, {:.6}) is out of reach of the rotaries ({}){miss}",
+                        a.x,
+                        a.y,
+                        a.z,
+                        self.ranges()
+                    ),
+                )
+                .at_span(block.span)
+                .with_help(
+                    "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out",
+                ),
+            );
+            return;
+        };
+        let prev = self.prev_angles();
+        if choice.held.is_none()
+            && let Some(k) = self.held
+            && let Some(pk) = prev[k]
+        {
+            let swing = (choice.angles[k] - pk).abs();
+            if cutting && swing > self.options.singular_jump {
+                out.diag(
+                    Diagnostic::warning(
+                        "ik::singular-swing",
+                        format!(
+                            "leaving the singular orientation, {} turns {swing:.3} deg in one cutting move",
+                            self.axes[k].letter()
+                        ),
+                    )
+                    .at_span(block.span)
+                    .with_help(
+                        "densify splits the move so the tip follows the programmed line, but the rotary swings while cutting; keep the tool axis further from the singular direction in the CAM to avoid it",
+                    ),
+                );
+            }
+        }
+        self.held = choice.held;
+
+        let mut target = self.joints_at(&pose.tip, choice.angles);
+        for a in pose.extra.known.iter() {
+            if !AxisSet::XYZ.contains(a) && !self.axes.contains(&a) {
+                target.set(a, pose.extra.values[a.index()]);
+            }
+        }
+        let written = m.written.union(self.written());
+
+        if let Some((continuous, jump)) = choice.flip {
+            let out_of_range = (0..2)
+                .find_map(|i| {
+                    let (lo, hi) = self.machine.limits(self.axes[i])?;
+                    let v = continuous[i];
+                    (v < lo - LIMIT_SLACK || v > hi + LIMIT_SLACK).then(|| {
+                        format!(
+                            "{} would be {v:.3} deg, outside {lo}..{hi}",
+                            self.axes[i].letter()
+                        )
+                    })
+                })
+                .unwrap_or_else(|| "the continuous solution is out of limits".into());
+            let five = self.prev_five();
+            match (self.options.on_flip, five) {
+                (OnFlip::Retract, Some((xyz0, angles0))) => {
+                    let d = self.options.retract_distance;
+                    let from = self.machine.forward(&xyz0, angles0);
+                    let up = from.tip + from.axis.into_inner() * d;
+                    let above = pose.tip + pose.axis.into_inner() * d;
+                    let retract = self.joints_at(&up, angles0);
+                    let turn = self.joints_at(&above, choice.angles);
+                    let step = |kind: MotionKind, target: Joints| {
+                        Block::new(
+                            block.span,
+                            BlockKind::Motion(Motion {
+                                kind,
+                                target: Target::Joints(target),
+                                feed: m.feed,
+                                written: self.written(),
+                                machine_frame: false,
+                                extra: String::new(),
+                            }),
+                        )
+                    };
+                    out.push(step(MotionKind::Linear, retract));
+                    out.push(step(MotionKind::Rapid, turn));
+                    out.diag(
+                        Diagnostic::warning(
+                            "ik::retract",
+                            format!(
+                                "the rotaries flip to the other solution ({out_of_range}): retracting {d} mm along the tool axis, turning {} by up to {jump:.3} deg and plunging back at the block's feed",
+                                self.ranges_moved(angles0, choice.angles)
+                            ),
+                        )
+                        .at_span(block.span),
+                    );
+                }
+                (on_flip, _) => {
+                    let help = if on_flip == OnFlip::Retract {
+                        "the position before this block is not known, so there is nothing to retract from; move to a known pose first".to_string()
+                    } else {
+                        "set `on_flip = \"retract\"` in the preset's ik options to retract, rotate and re-engage".to_string()
+                    };
+                    out.diag(
+                        Diagnostic::error(
+                            "ik::flip",
+                            format!(
+                                "the path leaves the rotaries' reach on its current solution ({out_of_range}); the other solution is {jump:.3} deg away, too far for a cutting move"
+                            ),
+                        )
+                        .at_span(block.span)
+                        .with_help(help),
+                    );
+                }
+            }
+        }
+
+        m.target = Target::Joints(target);
+        m.written = written;
+        self.prev = target;
+        out.push(block);
+    }
+
+    /// The letters of the rotaries that change between `a` and `b`: `A and C`.
+    fn ranges_moved(&self, a: [f64; 2], b: [f64; 2]) -> String {
+        let moved: Vec<String> = (0..2)
+            .filter(|&i| (a[i] - b[i]).abs() > TIE)
+            .map(|i| self.axes[i].letter().to_string())
+            .collect();
+        if moved.is_empty() {
+            "the rotaries".into()
+        } else {
+            moved.join(" and ")
+        }
+    }
+}
+
+impl Pass for Ik {
+    fn name(&self) -> &'static str {
+        "ik"
+    }
+
+    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+        match &block.kind {
+            BlockKind::Motion(m) => match m.target {
+                Target::Pose(pose) => {
+                    self.pose_motion(block, pose, out);
+                    return;
+                }
+                Target::Joints(j) => {
+                    self.prev = j;
+                    if m.machine_frame {
+                        self.prev.forget(m.written);
+                    }
+                    // Joint moves from elsewhere end any hold at a singularity.
+                    self.held = None;
+                }
+            },
+            BlockKind::Command(c) => self.prev.forget(c.clobbers),
+            BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
+            BlockKind::Offset(o) if o.code == OffsetCode::Set => {
+                // G92 on an unknown axis makes it known (as the backend assumes).
+                for a in o.declared.known.iter() {
+                    if self.prev.get(a).is_none() {
+                        self.prev
+                            .set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
+                    }
+                }
+            }
+            _ => {}
+        }
+        out.push(block);
+    }
+}
