@@ -140,10 +140,10 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Passes => {
             for p in passes::REGISTRY {
-                println!("{:<12} {}", p.name, p.summary);
+                println!("{:<13} {}", p.name, p.summary);
                 let defaults = (p.defaults)();
                 for line in defaults.lines() {
-                    println!("{:<12}   {line}", "");
+                    println!("{:<13}   {line}", "");
                 }
             }
             ExitCode::SUCCESS
@@ -209,7 +209,11 @@ fn plot(args: &PlotArgs) -> ExitCode {
         Ok(x) => x,
         Err(code) => return code,
     };
-    let mut printer = Printer::new(&file_name, pipeline_args.quiet, pipeline_args.message_format);
+    let mut printer = Printer::new(
+        &file_name,
+        pipeline_args.quiet,
+        pipeline_args.message_format,
+    );
     let mut plot = ncpost::plot::JointPlot::new(args.rapid_feed);
     let summary = pipeline.run_into(source, input, &mut plot, &mut |d| printer.print(d));
     if summary.errors > 0 {
@@ -246,7 +250,10 @@ fn open_input(path: &Path) -> Result<(Box<dyn io::BufRead>, String), ExitCode> {
         return Ok((Box::new(io::stdin().lock()), "<stdin>".to_string()));
     }
     if path.is_dir() {
-        return Err(usage(format!("{} is a directory; give an input file", path.display())));
+        return Err(usage(format!(
+            "{} is a directory; give an input file",
+            path.display()
+        )));
     }
     match File::open(path) {
         Ok(f) => Ok((
@@ -345,7 +352,9 @@ fn run(
                 }
                 return write_atomically(
                     path,
-                    |out, printer| pipeline.run_source(source, input, out, &mut |d| printer.print(d)),
+                    |out, printer| {
+                        pipeline.run_source(source, input, out, &mut |d| printer.print(d))
+                    },
                     &mut printer,
                 );
             }
@@ -506,8 +515,18 @@ fn looks_like_cl(path: &Path) -> bool {
         return false;
     }
     const WORDS: [&str; 12] = [
-        "GOTO/", "FROM/", "PARTNO", "TOOL PATH/", "MULTAX", "FEDRAT/", "TLAXIS/", "UNITS/",
-        "CUTTER/", "SPINDL/", "LOADTL/", "TLDATA/",
+        "GOTO/",
+        "FROM/",
+        "PARTNO",
+        "TOOL PATH/",
+        "MULTAX",
+        "FEDRAT/",
+        "TLAXIS/",
+        "UNITS/",
+        "CUTTER/",
+        "SPINDL/",
+        "LOADTL/",
+        "TLDATA/",
     ];
     String::from_utf8_lossy(&head).lines().any(|l| {
         let l = l.trim_start().to_ascii_uppercase();

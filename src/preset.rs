@@ -59,6 +59,10 @@ pub struct Preset {
 pub const BUILTIN: &[(&str, &str)] = &[
     ("default", include_str!("../passes/default.toml")),
     ("duet-cnc", include_str!("../passes/duet-cnc.toml")),
+    ("emoc-x5", include_str!("../passes/emoc-x5.toml")),
+    ("trunnion-bc", include_str!("../passes/trunnion-bc.toml")),
+    ("head-table", include_str!("../passes/head-table.toml")),
+    ("head-head-ab", include_str!("../passes/head-head-ab.toml")),
 ];
 
 impl Preset {
