@@ -119,6 +119,10 @@ pub const INFO: PassInfo = PassInfo {
 /// Slack on rotary limits, degrees: an angle this close to a limit counts as inside.
 const LIMIT_SLACK: f64 = 1e-9;
 
+/// Largest tool-axis turn (degrees) compared by end points alone; longer cutting moves are
+/// followed along their path (see `Ik::walked`).
+const WALK_STEP: f64 = 2.0;
+
 /// Costs closer than this (degrees) are a tie, decided by the preferred sign.
 const TIE: f64 = 1e-9;
 
@@ -218,9 +222,58 @@ impl Ik {
         false
     }
 
+    /// The rotary values reached by following the tool axis from the previous orientation
+    /// to `axis` along the great circle (the path densify makes the tool take) in steps of
+    /// at most [`WALK_STEP`] degrees, taking the nearest solution at each step. Comparing
+    /// end points alone can pick the other branch when a move turns the axis far: from
+    /// A20 C240 to a 70 deg tilt, A-70 C160 is "nearer" than A70 C340, but getting there
+    /// swings the tool through vertical, off the programmed path.
+    fn walked(&self, axis: Unit<Vector3<f64>>, prev: [Option<f64>; 2]) -> [Option<f64>; 2] {
+        let [Some(p0), Some(p1)] = prev else {
+            return prev;
+        };
+        let from = self.machine.forward(&[0.0; 3], [p0, p1]).axis;
+        let turn = from.angle(&axis).to_degrees();
+        if turn <= WALK_STEP || turn > 180.0 - WALK_STEP {
+            return prev;
+        }
+        let steps = (turn / WALK_STEP).ceil() as usize;
+        let mut cur = [p0, p1];
+        for s in 1..=steps {
+            let t = s as f64 / steps as f64;
+            let Some(ax) = from.try_slerp(&axis, t, 1e-12) else {
+                return prev;
+            };
+            let mut best: Option<([f64; 2], (f64, f64))> = None;
+            for o in &self.machine.inverse(ax) {
+                let mut a = [
+                    near_turn(o.angles[0], cur[0]),
+                    near_turn(o.angles[1], cur[1]),
+                ];
+                if let Some(f) = o.free {
+                    a[f] = cur[f];
+                }
+                let c = self.cost(a, [Some(cur[0]), Some(cur[1])]);
+                if best.is_none_or(|(_, bc)| Self::less(c, bc) == Some(true)) {
+                    best = Some((a, c));
+                }
+            }
+            match best {
+                Some((a, _)) => cur = a,
+                None => return prev,
+            }
+        }
+        [Some(cur[0]), Some(cur[1])]
+    }
+
     /// The rotary values for tool axis `axis`; `None` when no orientation is reachable.
     fn choose(&self, axis: Unit<Vector3<f64>>, cutting: bool) -> Option<Choice> {
-        let prev = self.prev_angles();
+        let actual = self.prev_angles();
+        let prev = if cutting {
+            self.walked(axis, actual)
+        } else {
+            actual
+        };
         let sols = self.machine.inverse(axis);
         let free = sols.iter().find_map(|o| o.free);
         if free.is_some() || self.machine.singularity_distance(axis) < self.options.singularity_cone
@@ -275,9 +328,9 @@ impl Ik {
             && cutting
             && prev.iter().all(Option::is_some)
             && near_cost.0 < cost.0 - TIE
-            && cost.0 > self.options.max_cutting_jump
+            && self.cost(angles, actual).0 > self.options.max_cutting_jump
         {
-            flip = Some((near, cost.0));
+            flip = Some((near, self.cost(angles, actual).0));
         }
         Some(Choice {
             angles,
