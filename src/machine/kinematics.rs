@@ -6,7 +6,7 @@
 //! solutions, one when the cones touch, none when they miss (the orientation is out of
 //! reach of this axis pair).
 
-use nalgebra::{Point3, Rotation3, Unit, Vector3};
+use nalgebra::{Matrix3, Point3, Rotation3, Unit, Vector3};
 use smallvec::SmallVec;
 
 use super::{Layout, Machine, Mount};
@@ -90,28 +90,47 @@ impl Machine {
     }
 
     fn rotation(&self, i: usize, deg: f64) -> Rotation3<f64> {
-        Rotation3::from_axis_angle(&Unit::new_unchecked(unit_of(self, i)), self.physical(i, deg))
+        let (s, c) = self.physical(i, deg).sin_cos();
+        // Built directly: about a coordinate axis the matrix is known, and this runs for
+        // every block (from_axis_angle would normalise and multiply out the general form).
+        let m = match self.rotary[i].axis {
+            super::RotaryLetter::A => Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c),
+            super::RotaryLetter::B => Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c),
+            super::RotaryLetter::C => Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0),
+        };
+        Rotation3::from_matrix_unchecked(m)
     }
 
-    /// Indices of the table rotaries and of the head rotaries, base outward.
-    fn chains(&self) -> (SmallVec<[usize; 2]>, SmallVec<[usize; 2]>) {
-        let mut table = SmallVec::new();
-        let mut head = SmallVec::new();
+    /// Both rotaries' rotations at joint values `angles` (degrees, listing order), for
+    /// [`Machine::forward_with`]: a caller that needs them again can keep them.
+    pub fn rotations(&self, angles: [f64; 2]) -> [Rotation3<f64>; 2] {
+        [self.rotation(0, angles[0]), self.rotation(1, angles[1])]
+    }
+
+    /// Indices of the rotaries on `mount`, base outward.
+    fn chain(&self, mount: Mount) -> ([usize; 2], usize) {
+        let mut idx = [0; 2];
+        let mut n = 0;
         for (i, r) in self.rotary.iter().enumerate() {
-            match r.on {
-                Mount::Table => table.push(i),
-                Mount::Head => head.push(i),
+            if r.on == mount {
+                idx[n] = i;
+                n += 1;
             }
         }
-        (table, head)
+        (idx, n)
     }
 
     /// Applies the chain `idx` (base outward) to a point: the outermost element turns
     /// first, then the one carrying it.
-    fn chain_point(&self, idx: &[usize], angles: [f64; 2], mut x: Vector3<f64>) -> Vector3<f64> {
+    fn chain_point(
+        &self,
+        idx: &[usize],
+        rot: &[Rotation3<f64>; 2],
+        mut x: Vector3<f64>,
+    ) -> Vector3<f64> {
         for &i in idx.iter().rev() {
             let c = Vector3::from(self.rotary[i].pivot);
-            x = c + self.rotation(i, angles[i]) * (x - c);
+            x = c + rot[i] * (x - c);
         }
         x
     }
@@ -119,20 +138,20 @@ impl Machine {
     fn chain_point_inverse(
         &self,
         idx: &[usize],
-        angles: [f64; 2],
+        rot: &[Rotation3<f64>; 2],
         mut x: Vector3<f64>,
     ) -> Vector3<f64> {
         for &i in idx.iter() {
             let c = Vector3::from(self.rotary[i].pivot);
-            x = c + self.rotation(i, angles[i]).inverse() * (x - c);
+            x = c + rot[i].inverse() * (x - c);
         }
         x
     }
 
-    fn chain_rotation(&self, idx: &[usize], angles: [f64; 2]) -> Rotation3<f64> {
+    fn chain_rotation(&self, idx: &[usize], rot: &[Rotation3<f64>; 2]) -> Rotation3<f64> {
         let mut r = Rotation3::identity();
         for &i in idx {
-            r *= self.rotation(i, angles[i]);
+            r *= rot[i];
         }
         r
     }
@@ -140,13 +159,23 @@ impl Machine {
     /// The tool pose in the part frame for linear positions `xyz` (mm) and rotary joint
     /// values `angles` (degrees, listing order).
     pub fn forward(&self, xyz: &[f64; 3], angles: [f64; 2]) -> ToolPose {
-        let (table, head) = self.chains();
-        let tip_machine = Vector3::from(*xyz) + self.chain_point(&head, angles, Vector3::zeros());
-        let tip = self.chain_point_inverse(&table, angles, tip_machine);
-        let axis_machine = self.chain_rotation(&head, angles) * Vector3::z();
-        let axis = self.chain_rotation(&table, angles).inverse() * axis_machine;
+        self.forward_with(xyz, &self.rotations(angles))
+    }
+
+    /// [`Machine::forward`] with the rotaries' rotations from [`Machine::rotations`].
+    pub fn forward_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> ToolPose {
+        let rot = *rot;
+        let (table, nt) = self.chain(Mount::Table);
+        let (head, nh) = self.chain(Mount::Head);
+        let (table, head) = (&table[..nt], &head[..nh]);
+        let tip_machine = Vector3::from(*xyz) + self.chain_point(head, &rot, Vector3::zeros());
+        let tip = self.chain_point_inverse(table, &rot, tip_machine);
+        let axis_machine = self.chain_rotation(head, &rot) * Vector3::z();
+        let axis = self.chain_rotation(table, &rot).inverse() * axis_machine;
         ToolPose {
             tip: Point3::from(tip),
+            // A product of rotations keeps unit length to rounding; renormalise anyway so
+            // the invariant holds exactly enough for long chains of computation.
             axis: Unit::new_normalize(axis),
         }
     }
@@ -154,9 +183,11 @@ impl Machine {
     /// The linear positions (X, Y, Z, mm) that put the tool tip on `tip` (part frame) with
     /// the rotaries at `angles`.
     pub fn linear(&self, tip: &Point3<f64>, angles: [f64; 2]) -> [f64; 3] {
-        let (table, head) = self.chains();
-        let tip_machine = self.chain_point(&table, angles, tip.coords);
-        let xyz = tip_machine - self.chain_point(&head, angles, Vector3::zeros());
+        let rot = self.rotations(angles);
+        let (table, nt) = self.chain(Mount::Table);
+        let (head, nh) = self.chain(Mount::Head);
+        let tip_machine = self.chain_point(&table[..nt], &rot, tip.coords);
+        let xyz = tip_machine - self.chain_point(&head[..nh], &rot, Vector3::zeros());
         [xyz.x, xyz.y, xyz.z]
     }
 
@@ -261,10 +292,12 @@ impl Machine {
         let mut phys = [0.0; 2];
         phys[index] = self.physical(index, value);
         if index == c.ia {
-            let v = Rotation3::from_axis_angle(&Unit::new_unchecked(c.w1), c.sa * phys[index]) * c.p;
+            let v =
+                Rotation3::from_axis_angle(&Unit::new_unchecked(c.w1), c.sa * phys[index]) * c.p;
             phys[c.ib] = c.sb * angle_about(&c.w2, &c.q, &v).unwrap_or(0.0);
         } else {
-            let v = Rotation3::from_axis_angle(&Unit::new_unchecked(c.w2), c.sb * phys[index]) * c.q;
+            let v =
+                Rotation3::from_axis_angle(&Unit::new_unchecked(c.w2), c.sb * phys[index]) * c.q;
             phys[c.ia] = c.sa * angle_about(&c.w1, &c.p, &v).unwrap_or(0.0);
         }
         let other = 1 - index;

@@ -115,6 +115,8 @@ struct Node {
     joints: Joints,
     xyz: [f64; 3],
     angles: [f64; 2],
+    /// The rotaries' rotations at `angles` (kept: the curvature bound turns by them).
+    rot: [Rotation3<f64>; 2],
     pose: ToolPose,
 }
 
@@ -292,11 +294,13 @@ impl Densify {
             joints.get(Axis::Z)?,
         ];
         let angles = [joints.get(self.axes[0])?, joints.get(self.axes[1])?];
+        let rot = self.machine.rotations(angles);
         Some(Node {
             joints: *joints,
             xyz,
             angles,
-            pose: self.machine.forward(&xyz, angles),
+            rot,
+            pose: self.machine.forward_with(&xyz, &rot),
         })
     }
 
@@ -349,16 +353,16 @@ impl Densify {
         // The distance from the axis changes at most at `speed`, so between the ends it
         // stays below the meeting point of the two slopes.
         let rho = (off_axis(&jet.ends[0]) + off_axis(&jet.ends[1]) + jet.speed) / 2.0;
-        let turn = |deg: f64, q: &Vector3<f64>| {
-            let angle = (r.direction * (deg - r.zero_offset)).to_radians();
-            let rot = Rotation3::from_axis_angle(&u, if inverse { -angle } else { angle });
-            c + rot * (q - c)
+        // The ends turn exactly as in the forward kinematics, by the nodes' rotations.
+        let turn = |rot: &Rotation3<f64>, q: &Vector3<f64>| {
+            if inverse {
+                c + rot.inverse() * (q - c)
+            } else {
+                c + rot * (q - c)
+            }
         };
         Jet {
-            ends: [
-                turn(a.angles[i], &jet.ends[0]),
-                turn(b.angles[i], &jet.ends[1]),
-            ],
+            ends: [turn(&a.rot[i], &jet.ends[0]), turn(&b.rot[i], &jet.ends[1])],
             speed: omega * rho + jet.speed,
             accel: omega * omega * rho + 2.0 * omega * jet.speed + jet.accel,
         }
@@ -477,11 +481,13 @@ impl Densify {
         joints.set(Axis::Z, xyz[2]);
         joints.set(self.axes[0], angles[0]);
         joints.set(self.axes[1], angles[1]);
+        let rot = self.machine.rotations(angles);
         Node {
             joints,
             xyz,
             angles,
-            pose: self.machine.forward(&xyz, angles),
+            rot,
+            pose: self.machine.forward_with(&xyz, &rot),
         }
     }
 
@@ -548,11 +554,13 @@ impl Densify {
             joints.set(Axis::Z, xyz[2]);
             joints.set(self.axes[0], angles[0]);
             joints.set(self.axes[1], angles[1]);
+            let rot = self.machine.rotations(angles);
             return Some(Node {
                 joints,
                 xyz,
                 angles,
-                pose: self.machine.forward(&xyz, angles),
+                rot,
+                pose: self.machine.forward_with(&xyz, &rot),
             });
         }
         None

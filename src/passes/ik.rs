@@ -152,6 +152,8 @@ pub struct Ik {
     prev: Joints,
     /// The rotary held at a singularity by the last pose block.
     held: Option<usize>,
+    /// The rotary values and tool axis of the last pose block.
+    last_axis: Option<([f64; 2], Unit<Vector3<f64>>)>,
 }
 
 impl Ik {
@@ -166,6 +168,7 @@ impl Ik {
             axes,
             prev: Joints::default(),
             held: None,
+            last_axis: None,
         })
     }
 
@@ -232,7 +235,11 @@ impl Ik {
         let [Some(p0), Some(p1)] = prev else {
             return prev;
         };
-        let from = self.machine.forward(&[0.0; 3], [p0, p1]).axis;
+        // The axis the previous block asked for, unless the rotaries moved since.
+        let from = match self.last_axis {
+            Some((angles, axis)) if angles == [p0, p1] => axis,
+            _ => self.machine.forward(&[0.0; 3], [p0, p1]).axis,
+        };
         let turn = from.angle(&axis).to_degrees();
         if turn <= WALK_STEP || turn > 180.0 - WALK_STEP {
             return prev;
@@ -555,6 +562,7 @@ impl Ik {
         m.target = Target::Joints(target);
         m.written = written;
         self.prev = target;
+        self.last_axis = Some((choice.angles, pose.axis));
         out.push(block);
     }
 

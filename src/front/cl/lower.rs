@@ -438,6 +438,9 @@ impl Lowerer {
 
     fn lower(&mut self, stmt: &Statement, out: &mut Vec<Block>, diags: &mut Vec<Diagnostic>) {
         let code = stmt.code.as_str();
+        if self.plain_goto(stmt, code, out) {
+            return;
+        }
         if code.trim().is_empty() {
             return;
         }
@@ -488,6 +491,65 @@ impl Lowerer {
             }
             diags.push(d);
         }
+    }
+
+    /// Lowers the commonest statement, a plain `GOTO/x,y,z[,i,j,k]` with no arc, cycle or
+    /// MULTAX/OFF in force, without the grammar: most lines of a 5-axis file are this.
+    /// Returns false for anything else, which then takes the full path (and gets its
+    /// diagnostics there); both paths give the same block.
+    fn plain_goto(&mut self, stmt: &Statement, code: &str, out: &mut Vec<Block>) -> bool {
+        let code = code.trim();
+        let Some(head) = code.get(..5) else {
+            return false;
+        };
+        if !head.eq_ignore_ascii_case("GOTO/")
+            || self.circle.is_some()
+            || self.multax == Some(false)
+            || self.cycle.active().is_some()
+        {
+            return false;
+        }
+        let mut v = [0.0f64; 6];
+        let mut n = 0;
+        for part in code[5..].split(',') {
+            if n == 6 {
+                return false;
+            }
+            match part.trim().parse::<f64>() {
+                Ok(x)
+                    if x.is_finite()
+                        && part
+                            .bytes()
+                            .all(|b| !b.is_ascii_alphabetic() || b == b'e' || b == b'E') =>
+                {
+                    v[n] = x
+                }
+                _ => return false,
+            }
+            n += 1;
+        }
+        let axis = match n {
+            3 => self.axis,
+            6 => match unit(Vector3::new(v[3], v[4], v[5])) {
+                Some(a) => a,
+                None => return false,
+            },
+            _ => return false,
+        };
+        let tip = Point3::new(v[0], v[1], v[2]) * self.scale;
+        if !tip.iter().all(|c| c.is_finite()) {
+            return false;
+        }
+        self.axis = axis;
+        let kind = if std::mem::replace(&mut self.rapid_next, false) {
+            MotionKind::Rapid
+        } else {
+            MotionKind::Linear
+        };
+        out.push(motion_block(stmt.span, kind, tip, axis, self.feed));
+        self.pos = Some(tip);
+        self.after_goto = true;
+        true
     }
 
     fn dispatch(
