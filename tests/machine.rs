@@ -27,8 +27,7 @@ fn seed_xyz(p: [f64; 3], a_deg: f64, c_deg: f64) -> [f64; 3] {
         / den;
     let z = (ca * sc * sc * pz + ca * cc * cc * pz - cc * sa * py
         + sa * sc * px
-        + ((sa * sa + ca * ca - ca) * sc * sc + cc * cc * sa * sa + (ca * ca - ca) * cc * cc)
-            * az)
+        + ((sa * sa + ca * ca - ca) * sc * sc + cc * cc * sa * sa + (ca * ca - ca) * cc * cc) * az)
         / den;
     [x, y, z]
 }
@@ -93,9 +92,14 @@ proptest! {
 fn seed_c_formula_misaligns_the_tool_axis_ours_does_not() {
     let m = machine("emoc-x5");
     let mut seed_worst = 0.0f64;
-    for (i, &(tx, ty, tz)) in [(0.3, 0.4, 0.866), (-0.5, 0.2, 0.84), (0.1, -0.7, 0.707), (0.6, 0.0, 0.8)]
-        .iter()
-        .enumerate()
+    for (i, &(tx, ty, tz)) in [
+        (0.3, 0.4, 0.866),
+        (-0.5, 0.2, 0.84),
+        (0.1, -0.7, 0.707),
+        (0.6, 0.0, 0.8),
+    ]
+    .iter()
+    .enumerate()
     {
         let axis = Unit::new_normalize(Vector3::new(tx, ty, tz));
         let (a, c) = seed_angles(&axis);
@@ -110,13 +114,25 @@ fn seed_c_formula_misaligns_the_tool_axis_ours_does_not() {
         }
         // The consistent pair: A = acos(Tz), C = atan2(Tx, -Ty); and -A, C + 180.
         let c_consistent = tx.atan2(-ty).to_degrees();
-        assert!(sols.iter().any(|s| close(s.angles[0], a, 1e-9)
-            && close(s.angles[1], c_consistent, 1e-9)));
+        assert!(
+            sols.iter()
+                .any(|s| close(s.angles[0], a, 1e-9) && close(s.angles[1], c_consistent, 1e-9))
+        );
         assert!(sols.iter().any(|s| close(s.angles[0], -a, 1e-9)
-            && close(((s.angles[1] - c_consistent - 180.0) % 360.0 + 360.0) % 360.0, 0.0, 1e-9)
-                | close(((s.angles[1] - c_consistent - 180.0) % 360.0 + 360.0) % 360.0, 360.0, 1e-9)));
+            && close(
+                ((s.angles[1] - c_consistent - 180.0) % 360.0 + 360.0) % 360.0,
+                0.0,
+                1e-9
+            ) | close(
+                ((s.angles[1] - c_consistent - 180.0) % 360.0 + 360.0) % 360.0,
+                360.0,
+                1e-9
+            )));
     }
-    assert!(seed_worst > 10.0, "the printed C formula misaligns by {seed_worst} deg at most");
+    assert!(
+        seed_worst > 10.0,
+        "the printed C formula misaligns by {seed_worst} deg at most"
+    );
 }
 
 /// Exactly vertical: C is free, A is 0.
