@@ -222,7 +222,8 @@ impl Pipeline {
     ) -> Result<Summary, Diagnostic> {
         const BATCH: usize = 1024;
         let preset = &self.preset;
-        let stages = &mut self.stages;
+        let share = self.stages.front_share();
+        let (mut front_part, mut back_part) = self.stages.split(share);
         let progress = &mut self.progress;
         let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Block>>(2);
         let mut summary = Summary::default();
@@ -244,9 +245,9 @@ impl Pipeline {
                     };
                     let mut next = Vec::with_capacity(BATCH);
                     for mut batch in rx {
-                        stages.flow(0, &mut batch, &mut next, &mut diags, &mut deliver);
+                        back_part.flow(0, &mut batch, &mut next, &mut diags, &mut deliver);
                     }
-                    stages.finish(&mut diags, &mut deliver);
+                    back_part.finish(&mut diags, &mut deliver);
                     if let Err(d) = backend.finish() {
                         diags.push(d);
                     }
@@ -258,25 +259,41 @@ impl Pipeline {
             });
             let mut diags = Vec::new();
             let mut counter = 0u64;
+            let mut next = Vec::with_capacity(BATCH);
+            // What the frontend's share of the passes produced, ready to send.
+            let mut ready: Vec<Block> = Vec::with_capacity(BATCH);
+            let mut open = true;
             loop {
                 let mut batch = Vec::with_capacity(BATCH);
                 front.next_batch(&mut batch, BATCH, &mut diags);
+                let end = batch.is_empty();
+                summary.blocks_in += batch.len() as u64;
+                counter += batch.len() as u64;
+                {
+                    let mut send = |blocks: &mut Vec<Block>, _: &mut Vec<Diagnostic>| {
+                        ready.append(blocks);
+                    };
+                    if end {
+                        front_part.finish(&mut diags, &mut send);
+                    } else {
+                        front_part.flow(0, &mut batch, &mut next, &mut diags, &mut send);
+                    }
+                }
                 if !diags.is_empty() {
                     report(&mut diags, on_diag, &mut summary);
                 }
-                if batch.is_empty() {
-                    break;
-                }
-                summary.blocks_in += batch.len() as u64;
-                counter += batch.len() as u64;
                 if counter >= 1 << 14 {
                     counter = 0;
                     if let Some(p) = progress.as_mut() {
                         p(front.bytes_read());
                     }
                 }
+                let out = std::mem::replace(&mut ready, Vec::with_capacity(BATCH));
                 // A closed channel means the worker stopped; its error comes at join.
-                if tx.send(batch).is_err() {
+                if !out.is_empty() && open && tx.send(out).is_err() {
+                    open = false;
+                }
+                if end || !open {
                     break;
                 }
             }
@@ -350,6 +367,7 @@ impl Pipeline {
             summary.blocks_in += 1;
             cur.push(block);
             self.stages
+                .whole()
                 .flow(0, &mut cur, &mut next, &mut diags, &mut deliver);
             if !diags.is_empty() {
                 report(&mut diags, on_diag, &mut summary);
@@ -362,7 +380,7 @@ impl Pipeline {
                 }
             }
         }
-        self.stages.finish(&mut diags, &mut deliver);
+        self.stages.whole().finish(&mut diags, &mut deliver);
         summary.blocks_out = written;
         if let Err(d) = back.finish() {
             diags.push(d);
@@ -373,7 +391,70 @@ impl Pipeline {
 }
 
 impl Stages {
-    /// Sends the blocks in `cur` through passes `from..` and on to `deliver`.
+    /// All passes as one part.
+    fn whole(&mut self) -> Part<'_> {
+        Part {
+            passes: &mut self.passes,
+            first: 0,
+            dump_at: self.dump_at,
+            dump: self.dump.as_mut(),
+            last: true,
+        }
+    }
+
+    /// Passes `..k` and `k..` as two parts, for two threads. The dump point goes to the
+    /// part it falls in (a dump between the parts is written by the second).
+    fn split(&mut self, k: usize) -> (Part<'_>, Part<'_>) {
+        let (a, b) = self.passes.split_at_mut(k);
+        let (dump_a, dump_b) = match self.dump_at {
+            Some(p) if p < k => (self.dump.as_mut(), None),
+            _ => (None, self.dump.as_mut()),
+        };
+        (
+            Part {
+                passes: a,
+                first: 0,
+                dump_at: self.dump_at.filter(|p| *p < k),
+                dump: dump_a,
+                last: false,
+            },
+            Part {
+                passes: b,
+                first: k,
+                dump_at: self.dump_at.filter(|p| *p >= k),
+                dump: dump_b,
+                last: true,
+            },
+        )
+    }
+
+    /// How many leading passes run beside the frontend in [`Pipeline::run_threaded`]:
+    /// those up to and including `ik`, so the frontend thread (reading, lowering,
+    /// kinematics) and the writer thread (densify, feed, checks, printing) carry similar
+    /// loads; none without `ik`, where reading is the heavy part.
+    fn front_share(&self) -> usize {
+        self.passes
+            .iter()
+            .position(|p| p.name() == "ik")
+            .map_or(0, |i| i + 1)
+    }
+}
+
+/// A run of consecutive passes with the dump point that falls among them.
+struct Part<'a> {
+    passes: &'a mut [Box<dyn Pass>],
+    /// Index of `passes[0]` in the whole pipeline.
+    first: usize,
+    /// Dump point (0 after the frontend, i + 1 after pass i), if it is in this part.
+    dump_at: Option<usize>,
+    dump: Option<&'a mut Box<dyn Write + Send>>,
+    /// The last part also dumps after its last pass.
+    last: bool,
+}
+
+impl Part<'_> {
+    /// Sends the blocks in `cur` through this part's passes `from..` (local index) and on
+    /// to `deliver`.
     fn flow(
         &mut self,
         from: usize,
@@ -382,7 +463,7 @@ impl Stages {
         diags: &mut Vec<Diagnostic>,
         deliver: &mut dyn FnMut(&mut Vec<Block>, &mut Vec<Diagnostic>),
     ) {
-        if self.dump_at == Some(from) {
+        if self.dump_at == Some(self.first + from) {
             self.dump_blocks(cur);
         }
         for i in from..self.passes.len() {
@@ -392,7 +473,8 @@ impl Stages {
                 pass.run(b, &mut Output::new(next, diags));
             }
             std::mem::swap(cur, next);
-            if self.dump_at == Some(i + 1) {
+            let at = self.first + i + 1;
+            if self.dump_at == Some(at) && (self.last || i + 1 < self.passes.len()) {
                 self.dump_blocks(cur);
             }
         }

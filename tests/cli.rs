@@ -871,3 +871,50 @@ fn version_and_help() {
         assert!(stdout(&out).contains(flag), "{flag}");
     }
 }
+
+/// The E-moc pipeline runs its kinematics beside the frontend (a second thread does the
+/// rest): a dump at any point still shows the IR of that point, exactly once.
+#[test]
+fn dump_after_works_on_both_sides_of_the_thread_split() {
+    let cl = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/emoc_taper_boss.cl"),
+    )
+    .unwrap();
+    let dir = dir_with(&[("boss.cl", &cl)]);
+    let dump = |pass: &str| {
+        let out = run_in(
+            dir.path(),
+            &[
+                "run",
+                "--quiet",
+                "--preset",
+                "emoc-x5",
+                "boss.cl",
+                "--dump-after",
+                pass,
+                "-o",
+                "out.gcode",
+            ],
+            None,
+        );
+        assert_exit(&out, 0);
+        stderr(&out)
+    };
+    let front = dump("front");
+    assert!(
+        front.contains("tip=(") && !front.contains(" A15.0000"),
+        "{front}"
+    );
+    let ik = dump("ik");
+    assert!(
+        !ik.contains("tip=(") && ik.contains(" A15.0000 C90.0000"),
+        "{ik}"
+    );
+    assert_eq!(front.lines().count(), ik.lines().count());
+    let unwrap = dump("unwrap-rotary");
+    assert!(unwrap.contains("G92") || unwrap.lines().count() >= ik.lines().count());
+    let densify = dump("densify");
+    assert!(densify.lines().count() > ik.lines().count());
+    let verify = dump("verify");
+    assert!(verify.lines().count() >= densify.lines().count());
+}
