@@ -322,6 +322,13 @@ impl Machine {
         }
     }
 
+    /// The cosine of [`Machine::singularity_distance`] (no inverse trigonometry: cheap
+    /// enough to test every block against a precomputed cone).
+    pub fn singularity_cos(&self, axis: Unit<Vector3<f64>>) -> f64 {
+        let c = self.condition(&axis);
+        c.w1.dot(&c.p).abs().max(c.w2.dot(&c.q).abs()).min(1.0)
+    }
+
     /// How far `axis` is from a singular orientation (where one rotary's value does not
     /// matter), degrees.
     pub fn singularity_distance(&self, axis: Unit<Vector3<f64>>) -> f64 {

@@ -100,8 +100,9 @@ struct Read {
     printed: [f64; 5],
     /// The tool tip of the printed position (part frame).
     tip: Point3<f64>,
-    /// The tool tip of the exact IR position.
-    exact_tip: Point3<f64>,
+    /// The exact IR position (its tip is only needed to tell a reorientation from a
+    /// short move, so it is computed when the printed tips are close).
+    exact: [f64; 5],
 }
 
 /// The `feed` pass.
@@ -171,7 +172,7 @@ impl Feed {
         Some(Read {
             printed,
             tip: tip(ir),
-            exact_tip: tip(exact),
+            exact,
         })
     }
 
@@ -196,8 +197,15 @@ impl Feed {
             let f = self.last_rate.unwrap_or(rate);
             return (mode, f);
         }
-        let exact = (b.exact_tip - a.exact_tip).norm();
         let length = (b.tip - a.tip).norm();
+        // Rounding moves a tip by well under this, so a longer printed move is no
+        // reorientation and the exact tips need not be computed.
+        let exact = if length > 0.01 {
+            length
+        } else {
+            let tip = |v: &[f64; 5]| self.machine.forward(&[v[0], v[1], v[2]], [v[3], v[4]]).tip;
+            (tip(&b.exact) - tip(&a.exact)).norm()
+        };
         let minutes = if exact.min(length) <= ZERO_TIP {
             drot / self.reorient_feed
         } else {

@@ -154,6 +154,8 @@ pub struct Ik {
     held: Option<usize>,
     /// The rotary values and tool axis of the last pose block.
     last_axis: Option<([f64; 2], Unit<Vector3<f64>>)>,
+    /// cos(singularity_cone).
+    cone_cos: f64,
 }
 
 impl Ik {
@@ -162,6 +164,7 @@ impl Ik {
         options.check()?;
         machine.check()?;
         let axes = machine.rotary_axes();
+        let cone_cos = options.singularity_cone.to_radians().cos();
         Ok(Ik {
             machine,
             options,
@@ -169,6 +172,7 @@ impl Ik {
             prev: Joints::default(),
             held: None,
             last_axis: None,
+            cone_cos,
         })
     }
 
@@ -283,8 +287,7 @@ impl Ik {
         };
         let sols = self.machine.inverse(axis);
         let free = sols.iter().find_map(|o| o.free);
-        if free.is_some() || self.machine.singularity_distance(axis) < self.options.singularity_cone
-        {
+        if free.is_some() || self.machine.singularity_cos(axis) > self.cone_cos {
             let k = free.unwrap_or_else(|| self.machine.singular_rotary(axis));
             if let Some(pk) = prev[k] {
                 let o = self.machine.hold(axis, k, pk);

@@ -91,7 +91,7 @@ impl Statement {
 
     /// Appends one line; returns whether the line ends with a `$` continuation mark.
     fn push_line(&mut self, text: &str, span: Span, join: bool) -> bool {
-        let (code, comment) = match text.find("$$") {
+        let (code, comment) = match comment_start(text) {
             Some(i) => (&text[..i], Some(&text[i + 2..])),
             None => (text, None),
         };
@@ -364,10 +364,19 @@ fn take_line(
         return true;
     }
     let continues = stmt.push_line(text, span, join);
-    let code_blank = text.split("$$").next().unwrap_or("").trim().is_empty();
+    let code_blank = text[..comment_start(text).unwrap_or(text.len())]
+        .trim()
+        .is_empty();
     // A blank or comment-only line inside a continued statement keeps it open.
     *open = continues || (*open && code_blank);
     !*open
+}
+
+/// Where a `$$` comment starts in `text`. A byte search for `$`, since most lines have
+/// none and this runs on every line.
+fn comment_start(text: &str) -> Option<usize> {
+    let bytes = text.as_bytes();
+    memchr::memchr_iter(b'$', bytes).find(|&i| bytes.get(i + 1) == Some(&b'$'))
 }
 
 /// How a line looks, for telling the triplet format from APT statements.
