@@ -918,3 +918,70 @@ fn dump_after_works_on_both_sides_of_the_thread_split() {
     let verify = dump("verify");
     assert!(verify.lines().count() >= densify.lines().count());
 }
+
+#[test]
+fn machine_config_g_prints_the_fragment_and_needs_a_machine() {
+    let dir = dir_with(&[]);
+    let out = run_in(
+        dir.path(),
+        &["machine", "config-g", "--preset", "emoc-x5"],
+        None,
+    );
+    assert_exit(&out, 0);
+    let text = stdout(&out);
+    for word in [
+        "M584 X0.0 Y0.1:0.2 Z0.3",
+        "M584 A0.4 C0.5 R1 S1",
+        "M208",
+        "A-90:135",
+        "M203",
+        "I6",
+        "M201",
+    ] {
+        assert!(text.contains(word), "{word}: {text}");
+    }
+    let out = run_in(
+        dir.path(),
+        &["machine", "config-g", "--preset", "duet-cnc"],
+        None,
+    );
+    assert_exit(&out, 2);
+    assert!(stderr(&out).contains("no [machine]"), "{}", stderr(&out));
+}
+
+#[test]
+fn plot_joints_writes_an_svg_of_each_axis() {
+    let cl = std::fs::read_to_string(
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/emoc_taper_boss.cl"),
+    )
+    .unwrap();
+    let dir = dir_with(&[("boss.cl", &cl)]);
+    let out = run_in(
+        dir.path(),
+        &[
+            "plot",
+            "--joints",
+            "--preset",
+            "emoc-x5",
+            "boss.cl",
+            "-o",
+            "joints.svg",
+        ],
+        None,
+    );
+    assert_exit(&out, 0);
+    let svg = std::fs::read_to_string(dir.path().join("joints.svg")).unwrap();
+    assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
+    for label in [">X (mm)<", ">Y (mm)<", ">Z (mm)<", ">A (deg)<", ">C (deg)<"] {
+        assert!(svg.contains(label), "{label}");
+    }
+    assert_eq!(svg.matches("<polyline").count(), 5);
+    // CL input without a machine is refused, and nothing is written.
+    let out = run_in(
+        dir.path(),
+        &["plot", "--joints", "boss.cl", "-o", "other.svg"],
+        None,
+    );
+    assert_ne!(out.status.code(), Some(0));
+    assert!(!dir.path().join("other.svg").exists());
+}

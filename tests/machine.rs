@@ -155,3 +155,38 @@ fn config_g_fragment() {
     let text = m.config_g();
     insta::assert_snapshot!(text);
 }
+
+/// Calibration offsets (bed.g): the joint value at the true zero. Every solution shifts
+/// by exactly the offsets, and FK(IK(pose)) = pose still holds.
+#[test]
+fn zero_offsets_shift_the_joint_values() {
+    let plain = machine("emoc-x5");
+    let mut calibrated = plain.clone();
+    calibrated.rotary[0].zero_offset = 0.35;
+    calibrated.rotary[1].zero_offset = -1.2;
+    let tip = Point3::new(12.0, -7.0, 20.0);
+    for (tilt, az) in [(30.0f64, 10.0f64), (100.0, -135.0), (5.0, 170.0)] {
+        let (st, ct) = tilt.to_radians().sin_cos();
+        let (sa, ca) = az.to_radians().sin_cos();
+        let axis = Unit::new_normalize(Vector3::new(st * ca, st * sa, ct));
+        let a = plain.inverse(axis);
+        let b = calibrated.inverse(axis);
+        assert_eq!(a.len(), b.len());
+        for (x, y) in a.iter().zip(&b) {
+            assert!(close(y.angles[0] - x.angles[0], 0.35, 1e-9));
+            let dc = (y.angles[1] - x.angles[1] + 1.2).rem_euclid(360.0);
+            assert!(dc < 1e-9 || dc > 360.0 - 1e-9, "{x:?} {y:?}");
+            let xyz = calibrated.linear(&tip, y.angles);
+            let pose = calibrated.forward(&xyz, y.angles);
+            assert!((pose.tip - tip).norm() < 1e-9);
+            assert!(
+                (pose.axis.into_inner() - axis.into_inner()).norm() < 1e-9,
+                "{tilt} {az} {y:?}"
+            );
+            // The same physical position: the machine coordinates agree.
+            assert!(
+                (Vector3::from(xyz) - Vector3::from(plain.linear(&tip, x.angles))).norm() < 1e-9
+            );
+        }
+    }
+}
