@@ -498,7 +498,8 @@ impl Lowerer {
     /// Returns false for anything else, which then takes the full path (and gets its
     /// diagnostics there); both paths give the same block.
     fn plain_goto(&mut self, stmt: &Statement, code: &str, out: &mut Vec<Block>) -> bool {
-        let code = code.trim();
+        // Bytes, not chars: this runs on every line, and CL numbers are ASCII.
+        let code = code.trim_ascii();
         let Some(head) = code.get(..5) else {
             return false;
         };
@@ -511,22 +512,25 @@ impl Lowerer {
         }
         let mut v = [0.0f64; 6];
         let mut n = 0;
-        for part in code[5..].split(',') {
+        let rest = &code[5..];
+        let mut start = 0;
+        loop {
             if n == 6 {
                 return false;
             }
-            match part.trim().parse::<f64>() {
-                Ok(x)
-                    if x.is_finite()
-                        && part
-                            .bytes()
-                            .all(|b| !b.is_ascii_alphabetic() || b == b'e' || b == b'E') =>
-                {
-                    v[n] = x
-                }
+            let end =
+                memchr::memchr(b',', &rest.as_bytes()[start..]).map_or(rest.len(), |i| start + i);
+            // Rust's parser also takes `inf` and `nan`: those are not finite and go the
+            // full way, which reports them.
+            match rest[start..end].trim_ascii().parse::<f64>() {
+                Ok(x) if x.is_finite() => v[n] = x,
                 _ => return false,
             }
             n += 1;
+            if end == rest.len() {
+                break;
+            }
+            start = end + 1;
         }
         let axis = match n {
             3 => self.axis,
