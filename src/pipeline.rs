@@ -122,6 +122,7 @@ impl Builder {
         }
         let context = passes::Context {
             machine: self.preset.machine.as_ref(),
+            polar: self.preset.polar.as_ref(),
             decimals: match self.preset.emit {
                 Emit::Rrf => Some(self.preset.rrf.decimals),
                 Emit::Gcode => Some(self.preset.gcode.decimals),

@@ -45,6 +45,8 @@ pub struct Preset {
     pub passes: Vec<PassSpec>,
     /// The machine the kinematics, feed and limits passes compute for.
     pub machine: Option<Machine>,
+    /// A polar machine (turntable and radial arm), for the polar passes.
+    pub polar: Option<crate::machine::polar::Polar>,
     /// G-code frontend options.
     pub gcode_input: front::gcode::Options,
     /// APT CL frontend options.

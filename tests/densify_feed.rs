@@ -118,6 +118,7 @@ fn run(
     let ctx = Context {
         machine: Some(m),
         decimals,
+        ..Context::default()
     };
     let mut pass = passes::build(name, &opts, &ctx).expect("pass");
     let mut out = Vec::new();
@@ -376,6 +377,7 @@ fn densify_keeps_short_moves_and_obeys_options() {
     let ctx = Context {
         machine: Some(&m),
         decimals: None,
+        ..Context::default()
     };
     for bad in ["tip_tolerance = 0.0", "axis_tolerance = 95.0", "bogus = 1"] {
         let t: toml::Table = toml::from_str(bad).unwrap();
@@ -793,6 +795,7 @@ fn feed_warnings_and_errors() {
     let ctx = Context {
         machine: Some(&m),
         decimals: None,
+        ..Context::default()
     };
     for bad in ["reorient_feed = 0.0", "mode = \"fast\"", "bogus = 1"] {
         let t: toml::Table = toml::from_str(bad).unwrap();

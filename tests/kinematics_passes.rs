@@ -101,6 +101,7 @@ fn run(
     let ctx = Context {
         machine: m,
         decimals: None,
+        ..Context::default()
     };
     let mut pass = passes::build(name, &opts, &ctx).expect("pass");
     let mut out = Vec::new();
@@ -534,6 +535,7 @@ fn ik_needs_a_machine_and_rejects_unknown_options() {
     let ctx = Context {
         machine: Some(&m),
         decimals: None,
+        ..Context::default()
     };
     let bogus: toml::Table = toml::from_str("cone = 1.0").unwrap();
     assert!(passes::build("ik", &bogus, &ctx).is_err());

@@ -37,6 +37,7 @@ fn stages(path: &str, preset_name: &str) -> String {
     let ctx = Context {
         machine: Some(&machine),
         decimals,
+        ..Context::default()
     };
     let mut blocks = program.blocks;
     let mut diags = program.diagnostics;

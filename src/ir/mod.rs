@@ -35,8 +35,11 @@ pub struct Span {
     pub line: u32,
 }
 
-/// A machine axis. `E` is the extruder (or any feeder) axis of printers.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+/// A machine axis. `E` is the extruder (or any feeder) axis of printers. In settings files
+/// it is written as its letter (`"X"`).
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize, serde::Deserialize,
+)]
 pub enum Axis {
     /// Linear X.
     X,

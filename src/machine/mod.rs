@@ -24,6 +24,7 @@
 
 mod config_g;
 mod kinematics;
+pub mod polar;
 
 pub use kinematics::{Orientation, ToolPose};
 

@@ -24,6 +24,8 @@ use crate::machine::Machine;
 pub struct Context<'a> {
     /// The preset's machine, if it defines one.
     pub machine: Option<&'a Machine>,
+    /// The preset's polar machine, if it defines one.
+    pub polar: Option<&'a crate::machine::polar::Polar>,
     /// The precision the backend prints with (`None` for the IR dump), so a pass can
     /// compute with the numbers the controller will see.
     pub decimals: Option<Decimals>,
