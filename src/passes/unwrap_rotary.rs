@@ -14,7 +14,7 @@
 //! [`OffsetChange`] whose offsets change that axis by whole turns. The IR stays continuous
 //! (invariant 2); the backend prints IR + offset. Offsets from upstream G92 blocks are
 //! tracked and rewritten so they agree with the unwrapped values and earlier re-basing.
-//! A printed value beyond 100000 degrees gets the warning `unwrap::float32`.
+//! A printed value beyond 8192 degrees gets the warning `unwrap::float32`.
 
 use serde::{Deserialize, Serialize};
 
@@ -85,8 +85,10 @@ pub const INFO: PassInfo = PassInfo {
     defaults: || super::to_toml(&Options::default()),
 };
 
-/// Above this size (degrees) a printed value loses precision as a 32-bit float.
-const FLOAT32_LIMIT: f64 = 100_000.0;
+/// Above this size (degrees) a printed value loses precision as a 32-bit float: from
+/// 2^13 on, one float step is 2^-10 deg (0.001 deg, 2.6 um at 150 mm from the axis), more
+/// than the 4 decimals the machine presets print.
+const FLOAT32_LIMIT: f64 = 8192.0;
 
 /// Slack on rotary limits, degrees.
 const LIMIT_SLACK: f64 = 1e-9;
@@ -271,8 +273,9 @@ impl UnwrapRotary {
                     Diagnostic::warning(
                         "unwrap::float32",
                         format!(
-                            "{} reaches {printed:.3} deg; RepRapFirmware keeps positions as 32-bit floats, which are coarse this far out",
-                            axis.letter()
+                            "{} reaches {printed:.3} deg; RepRapFirmware keeps positions as 32-bit floats, which step by {:.5} deg there",
+                            axis.letter(),
+                            2f64.powi(printed.abs().log2().floor() as i32 - 23)
                         ),
                     )
                     .at_span(block.span)
