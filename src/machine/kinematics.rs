@@ -164,6 +164,23 @@ impl Machine {
 
     /// [`Machine::forward`] with the rotaries' rotations from [`Machine::rotations`].
     pub fn forward_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> ToolPose {
+        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
+            // The common table-table case written out (it runs for every block in
+            // densify and feed): undo the base rotary, then the one it carries.
+            let (c0, c1) = (
+                Vector3::from(self.rotary[0].pivot),
+                Vector3::from(self.rotary[1].pivot),
+            );
+            let (r0, r1) = (rot[0].matrix(), rot[1].matrix());
+            let q = r0.tr_mul(&(Vector3::from(*xyz) - c0)) + c0 - c1;
+            let tip = r1.tr_mul(&q) + c1;
+            // The machine's Z seen from the part: R1ᵀ R0ᵀ z, and R0ᵀ z is R0's third row.
+            let axis = r1.tr_mul(&Vector3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]));
+            return ToolPose {
+                tip: Point3::from(tip),
+                axis: Unit::new_normalize(axis),
+            };
+        }
         let rot = *rot;
         let (table, nt) = self.chain(Mount::Table);
         let (head, nh) = self.chain(Mount::Head);
