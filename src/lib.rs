@@ -20,6 +20,7 @@ pub mod diag;
 pub mod front;
 pub mod ir;
 pub mod machine;
+pub mod motion;
 pub mod passes;
 pub mod pipeline;
 pub mod plot;

@@ -30,8 +30,11 @@ enum Command {
     Passes,
     /// List the built-in presets.
     Presets,
-    /// Draw a compiled program: joint values over time (SVG).
+    /// Draw a compiled program: joint values or speeds over time (SVG).
     Plot(PlotArgs),
+    /// Report time (motion-time model), lengths, extruded amount, bounding boxes and
+    /// counts of the compiled program as a table on standard output.
+    Stats(StatsArgs),
     /// Facts about a preset's machine.
     #[command(subcommand)]
     Machine(MachineCommand),
@@ -57,15 +60,29 @@ struct PresetArgs {
 struct PlotArgs {
     #[command(flatten)]
     pipeline: PipelineArgs,
-    /// Plot X, Y, Z and the rotary axes over time (the only plot so far; the default).
-    #[arg(long)]
+    /// Plot X, Y, Z and the rotary axes over time (the default).
+    #[arg(long, conflicts_with = "speed")]
     joints: bool,
+    /// Plot the tool's linear speed (for a polar machine the tip's Cartesian speed), the
+    /// axes' speeds and the screw speed (`M3 S`) over time, with the motion-time model.
+    #[arg(long)]
+    speed: bool,
     /// Speed assumed for rapids, mm/min.
     #[arg(long, default_value_t = 3000.0)]
     rapid_feed: f64,
     /// The SVG file; `-` or absent for standard output.
     #[arg(short, long)]
     output: Option<PathBuf>,
+}
+
+#[derive(Args)]
+struct StatsArgs {
+    #[command(flatten)]
+    pipeline: PipelineArgs,
+    /// Speed assumed for rapids, mm/min (capped by the axes' max_feed); default: the
+    /// preset's `stats` option, else 3000.
+    #[arg(long)]
+    rapid_feed: Option<f64>,
 }
 
 #[derive(Args)]
@@ -104,6 +121,10 @@ struct PipelineArgs {
     /// How diagnostics are printed.
     #[arg(long, value_enum, default_value = "human")]
     message_format: MessageFormat,
+    /// Timing model for every pass that needs time (stats, plots, extrusion rate, valve
+    /// timing), overriding the controller's `timing`.
+    #[arg(long, value_enum)]
+    timing: Option<TimingArg>,
     /// The input file, or `-` for standard input.
     input: PathBuf,
 }
@@ -120,6 +141,23 @@ enum FromArg {
     Gcode,
     Cl,
     Hpgl,
+}
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+enum TimingArg {
+    /// No acceleration.
+    ConstantVelocity,
+    /// Trapezoidal speed profiles with per-axis acceleration and jerk-limited junctions.
+    Trapezoid,
+}
+
+impl From<TimingArg> for ncpost::motion::Timing {
+    fn from(t: TimingArg) -> Self {
+        match t {
+            TimingArg::ConstantVelocity => ncpost::motion::Timing::ConstantVelocity,
+            TimingArg::Trapezoid => ncpost::motion::Timing::Trapezoid,
+        }
+    }
 }
 
 #[derive(Clone, Copy, PartialEq, ValueEnum)]
@@ -166,6 +204,7 @@ fn main() -> ExitCode {
         ),
         Command::Check(args) => run(&args, true, None, None, None),
         Command::Plot(args) => plot(&args),
+        Command::Stats(args) => stats(&args),
         Command::Machine(MachineCommand::ConfigG(args)) => config_g(&args),
     }
 }
@@ -214,12 +253,22 @@ fn plot(args: &PlotArgs) -> ExitCode {
         pipeline_args.quiet,
         pipeline_args.message_format,
     );
-    let mut plot = ncpost::plot::JointPlot::new(args.rapid_feed);
-    let summary = pipeline.run_into(source, input, &mut plot, &mut |d| printer.print(d));
+    let (summary, svg) = if args.speed {
+        let mut plot = ncpost::plot::SpeedPlot::for_preset(
+            pipeline.preset(),
+            pipeline_args.timing.map(Into::into),
+            args.rapid_feed,
+        );
+        let summary = pipeline.run_into(source, input, &mut plot, &mut |d| printer.print(d));
+        (summary, plot.svg())
+    } else {
+        let mut plot = ncpost::plot::JointPlot::new(args.rapid_feed);
+        let summary = pipeline.run_into(source, input, &mut plot, &mut |d| printer.print(d));
+        (summary, plot.svg())
+    };
     if summary.errors > 0 {
         return finish(Ok(summary), &mut printer);
     }
-    let svg = plot.svg();
     match args.output.as_deref().filter(|o| o.as_os_str() != "-") {
         None => {
             print!("{svg}");
@@ -235,6 +284,61 @@ fn plot(args: &PlotArgs) -> ExitCode {
             &mut printer,
         ),
     }
+}
+
+/// `ncpost stats`: the preset's pipeline into a `stats` collector, the table on stdout.
+fn stats(args: &StatsArgs) -> ExitCode {
+    let pipeline_args = &args.pipeline;
+    let timing = pipeline_args.timing.map(ncpost::motion::Timing::from);
+    // A `stats` pass of the preset gives its options (a controller for a machine-less
+    // preset) to the collector instead of reporting on its own.
+    let built = builder(pipeline_args, None, None).and_then(|b| {
+        let mut preset = b.preset_ref().clone();
+        let own = preset
+            .passes
+            .iter()
+            .position(|p| p.name == "stats")
+            .map(|i| preset.passes.remove(i).options);
+        let options: passes::stats::Options = match own {
+            Some(t) => passes::options(&t).map_err(|e| format!("options of pass `stats`: {e}"))?,
+            None => passes::stats::Options::default(),
+        };
+        let mut b = Pipeline::builder().preset(preset);
+        if let Some(t) = timing {
+            b = b.timing(t);
+        }
+        Ok((b.build()?, options))
+    });
+    let (mut pipeline, mut options) = match built {
+        Ok(x) => x,
+        Err(e) => return usage(e),
+    };
+    let source = source_of(pipeline_args);
+    let (input, file_name) = match open_input(&pipeline_args.input) {
+        Ok(x) => x,
+        Err(code) => return code,
+    };
+    let mut printer = Printer::new(
+        &file_name,
+        pipeline_args.quiet,
+        pipeline_args.message_format,
+    );
+    let preset = pipeline.preset();
+    let ctx = passes::Context {
+        machine: preset.machine.as_ref(),
+        polar: preset.polar.as_ref(),
+        timing,
+        ..passes::Context::default()
+    };
+    if let Some(f) = args.rapid_feed {
+        options.rapid_feed = f;
+    }
+    let mut collector = passes::stats::Stats::from_context(&options, &ctx);
+    let summary = pipeline.run_into(source, input, &mut collector, &mut |d| printer.print(d));
+    if summary.errors == 0 {
+        print!("{}", collector.table());
+    }
+    finish(Ok(summary), &mut printer)
 }
 
 fn source_of(args: &PipelineArgs) -> Source {
@@ -475,6 +579,9 @@ fn builder(
             ));
         }
         b = b.pass(&name, table);
+    }
+    if let Some(t) = args.timing {
+        b = b.timing(t.into());
     }
     if let Some(e) = emit {
         b = b.emit(match e {

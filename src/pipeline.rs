@@ -56,6 +56,7 @@ pub struct Builder {
     preset: Preset,
     dump_after: Option<String>,
     dump: Option<Box<dyn Write + Send>>,
+    timing: Option<crate::motion::Timing>,
 }
 
 /// A configured pipeline, ready to run.
@@ -110,6 +111,13 @@ impl Builder {
         self
     }
 
+    /// Overrides the timing model of every pass that uses the motion model
+    /// (`--timing`).
+    pub fn timing(mut self, timing: crate::motion::Timing) -> Self {
+        self.timing = Some(timing);
+        self
+    }
+
     /// The preset as configured so far.
     pub fn preset_ref(&self) -> &Preset {
         &self.preset
@@ -128,6 +136,7 @@ impl Builder {
                 Emit::Gcode => Some(self.preset.gcode.decimals),
                 Emit::Ir => None,
             },
+            timing: self.timing,
         };
         let mut passes = Vec::new();
         for spec in &self.preset.passes {

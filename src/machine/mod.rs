@@ -247,6 +247,13 @@ pub struct Controller {
     pub acceleration: PerAxis,
     /// Stepper drivers per axis (`M584`); axes without one are left out.
     pub drivers: Drivers,
+    /// How time is modelled (`constant-velocity` or `trapezoid`; see [`crate::motion`]).
+    pub timing: crate::motion::Timing,
+    /// Motion blocks the trapezoid model plans ahead (a firmware's queue length).
+    pub lookahead: usize,
+    /// Instantaneous speed change allowed per axis at a junction, mm/min or deg/min
+    /// (RepRapFirmware `M566`); an axis without one stops to change speed.
+    pub jerk: PerAxis,
 }
 
 impl Default for Controller {
@@ -257,6 +264,9 @@ impl Default for Controller {
             max_feed: PerAxis::default(),
             acceleration: PerAxis::default(),
             drivers: Drivers::default(),
+            timing: crate::motion::Timing::ConstantVelocity,
+            lookahead: 16,
+            jerk: PerAxis::default(),
         }
     }
 }

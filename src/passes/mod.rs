@@ -29,6 +29,9 @@ pub struct Context<'a> {
     /// The precision the backend prints with (`None` for the IR dump), so a pass can
     /// compute with the numbers the controller will see.
     pub decimals: Option<Decimals>,
+    /// The run-wide timing model (`--timing`), overriding the controller's and the
+    /// passes' own (see [`crate::motion::resolve_timing`]).
+    pub timing: Option<crate::motion::Timing>,
 }
 
 impl<'a> Context<'a> {

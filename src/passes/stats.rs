@@ -1,24 +1,53 @@
-//! `stats`: path lengths, time estimate, bounding box and block counts, reported at the end.
+//! `stats`: time (with the motion-time model), path lengths, extruded amount, bounding boxes and counts.
+//!
+//! The time comes from [`crate::motion`]: the controller of the preset's `[polar]` or
+//! `[machine]` table (feed rule, `max_feed`, `acceleration`, `jerk`, `timing`), or the
+//! default controller (NIST rule, no limits) without one; option `controller` replaces it. The run-wide `--timing` beats
+//! the pass option `timing`, which beats the controller's. As a pass it reports at the end
+//! as a note on standard error (first line `stats: ...`); `ncpost stats` prints
+//! [`Stats::table`] on standard output instead ([`Stats`] is also a [`Backend`]).
+//!
+//! Lengths are XYZ lengths of the joint values as the IR holds them (arcs by their
+//! helical length); the extruded amount is the sum of the positive E steps, retraction
+//! the sum of the negative ones. Bounding boxes are over the XYZ targets of all moves and
+//! over the two ends of the moves that extrude.
 
 use serde::{Deserialize, Serialize};
 
-use super::{Output, Pass, PassInfo};
+use super::{Context, Output, Pass, PassInfo};
+use crate::back::Backend;
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, Block, BlockKind, FeedMode, Joints, MotionKind, Target};
+use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
+use crate::motion::{self, Model, Planner, Timing};
 
 /// Options of `stats`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Options {
-    /// Speed assumed for rapids, mm/min.
+    /// Speed assumed for rapids, mm/min (capped by the axes' `max_feed`).
     pub rapid_feed: f64,
+    /// Timing model (`constant-velocity`, `trapezoid`); default: the controller's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub timing: Option<Timing>,
+    /// The controller to time with (a `[controller]`-like table: `feed_rule`, `max_feed`,
+    /// `acceleration`, `jerk`, `lookahead`, ...), for presets without a machine (a 3D
+    /// printer's M203/M201/M566); default: the preset's.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub controller: Option<crate::machine::Controller>,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { rapid_feed: 3000.0 }
+        Options {
+            rapid_feed: motion::DEFAULT_RAPID_FEED,
+            timing: None,
+            controller: None,
+        }
     }
 }
+
+/// An axis-aligned box over XYZ: (min, max).
+pub type Bounds = ([f64; 3], [f64; 3]);
 
 /// Totals collected by `stats`.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -27,14 +56,26 @@ pub struct Totals {
     pub blocks: u64,
     /// Rapid, linear and arc moves.
     pub moves: [u64; 3],
+    /// Moves that extrude (E increases).
+    pub extruding_moves: u64,
     /// Rapid length, mm (XYZ).
     pub rapid_mm: f64,
     /// Feed (G1/G2/G3) length, mm (XYZ).
     pub feed_mm: f64,
-    /// Estimated time, seconds (no acceleration).
+    /// XYZ length of the moves that extrude, mm.
+    pub extruding_mm: f64,
+    /// Sum of the positive E steps, mm of filament (or the slicer's E unit).
+    pub extruded: f64,
+    /// Sum of the negative E steps (retraction), as a positive number.
+    pub retracted: f64,
+    /// Program time under the model, seconds (moves and dwells).
     pub seconds: f64,
-    /// Bounding box of XYZ targets: (min, max).
-    pub bounds: Option<([f64; 3], [f64; 3])>,
+    /// Of which dwells, seconds.
+    pub dwell_seconds: f64,
+    /// Bounding box of all XYZ targets.
+    pub bounds: Option<Bounds>,
+    /// Bounding box of the moves that extrude.
+    pub extruded_bounds: Option<Bounds>,
     /// Blocks passed through as text.
     pub verbatim: u64,
     /// Comments.
@@ -43,28 +84,67 @@ pub struct Totals {
 
 /// The `stats` pass.
 pub struct Stats {
-    options: Options,
+    planner: Planner<()>,
     last: Joints,
-    /// What has been counted so far.
+    finished: bool,
+    /// What has been counted so far (`seconds` is complete after the end).
     pub totals: Totals,
 }
 
 /// Registry entry.
 pub const INFO: PassInfo = PassInfo {
     name: "stats",
-    summary: "report path lengths, a time estimate, the bounding box and block counts",
-    build: |t, _| Ok(Box::new(Stats::new(super::options(t)?))),
+    summary: "report time (motion model), path lengths, extruded amount, bounding boxes and counts",
+    build: |t, ctx| Ok(Box::new(Stats::from_context(&super::options(t)?, ctx))),
     defaults: || super::to_toml(&Options::default()),
 };
 
+fn grow(bounds: &mut Option<Bounds>, p: [f64; 3]) {
+    *bounds = Some(match *bounds {
+        None => (p, p),
+        Some((lo, hi)) => (
+            std::array::from_fn(|k| lo[k].min(p[k])),
+            std::array::from_fn(|k| hi[k].max(p[k])),
+        ),
+    });
+}
+
+fn xyz(j: &Joints) -> Option<[f64; 3]> {
+    Some([j.get(Axis::X)?, j.get(Axis::Y)?, j.get(Axis::Z)?])
+}
+
 impl Stats {
-    /// A `stats` pass with `options`.
+    /// A `stats` pass with `options` and the default controller.
     pub fn new(options: Options) -> Self {
+        Stats::from_context(&options, &Context::default())
+    }
+
+    /// A `stats` pass with `options`, timing with the context's controller.
+    pub fn from_context(options: &Options, ctx: &Context<'_>) -> Self {
+        let model = match &options.controller {
+            Some(c) => {
+                let timing = motion::resolve_timing(ctx.timing, options.timing, c.timing);
+                Model::new(c).with_timing(timing)
+            }
+            None => Model::from_context(ctx, options.timing),
+        }
+        .with_rapid_feed(options.rapid_feed);
+        Stats::with_model(model)
+    }
+
+    /// A `stats` pass timing with `model`.
+    pub fn with_model(model: Model) -> Self {
         Stats {
-            options,
+            planner: Planner::new(model),
             last: Joints::default(),
+            finished: false,
             totals: Totals::default(),
         }
+    }
+
+    /// The timing model in use.
+    pub fn timing(&self) -> Timing {
+        self.planner.model().timing
     }
 
     fn count(&mut self, block: &Block) {
@@ -77,62 +157,100 @@ impl Stats {
                     return;
                 };
                 let length = match m.kind {
-                    MotionKind::Arc(arc) => arc_length(&self.last, end, &arc),
-                    _ => xyz_distance(&self.last, end),
+                    MotionKind::Arc(arc) => motion::arc_length(&self.last, end, &arc),
+                    _ => {
+                        let d: f64 = [Axis::X, Axis::Y, Axis::Z]
+                            .iter()
+                            .filter_map(|&a| Some((end.get(a)? - self.last.get(a)?).powi(2)))
+                            .sum();
+                        d.sqrt()
+                    }
                 };
                 match m.kind {
                     MotionKind::Rapid => {
                         t.moves[0] += 1;
                         t.rapid_mm += length;
-                        t.seconds += 60.0 * length / self.options.rapid_feed.max(1e-9);
                     }
-                    _ => {
-                        t.moves[if matches!(m.kind, MotionKind::Linear) {
-                            1
-                        } else {
-                            2
-                        }] += 1;
+                    MotionKind::Linear => {
+                        t.moves[1] += 1;
                         t.feed_mm += length;
-                        t.seconds += match (m.feed.mode, m.feed.rate) {
-                            (FeedMode::InverseTime, Some(f)) if f > 0.0 => 60.0 / f,
-                            (FeedMode::PerMinute, Some(f)) if f > 0.0 => 60.0 * length / f,
-                            _ => 0.0,
-                        };
+                    }
+                    MotionKind::Arc(_) => {
+                        t.moves[2] += 1;
+                        t.feed_mm += length;
                     }
                 }
-                if end.known.contains(Axis::X)
-                    && end.known.contains(Axis::Y)
-                    && end.known.contains(Axis::Z)
-                {
-                    let p = [end.values[0], end.values[1], end.values[2]];
-                    t.bounds = Some(match t.bounds {
-                        None => (p, p),
-                        Some((lo, hi)) => (
-                            [lo[0].min(p[0]), lo[1].min(p[1]), lo[2].min(p[2])],
-                            [hi[0].max(p[0]), hi[1].max(p[1]), hi[2].max(p[2])],
-                        ),
-                    });
+                let de = match (self.last.get(Axis::E), end.get(Axis::E)) {
+                    (Some(a), Some(b)) => b - a,
+                    _ => 0.0,
+                };
+                if de > 0.0 {
+                    t.extruded += de;
+                    t.extruding_moves += 1;
+                    t.extruding_mm += length;
+                    for p in [xyz(&self.last), xyz(end)].into_iter().flatten() {
+                        grow(&mut t.extruded_bounds, p);
+                    }
+                } else {
+                    t.retracted -= de;
                 }
-                self.last = *end;
+                if let Some(p) = xyz(end) {
+                    grow(&mut t.bounds, p);
+                }
+                if let Some(seg) = self.planner.model().motion(&self.last, m) {
+                    self.planner.push_move(seg, ());
+                }
+                let mut next = self.last;
+                for a in end.known.iter() {
+                    next.set(a, end.values[a.index()]);
+                }
                 if m.machine_frame {
-                    self.last.forget(m.written);
+                    next.forget(m.written);
                 }
+                self.last = next;
+            }
+            BlockKind::Dwell { seconds } => {
+                t.dwell_seconds += seconds.max(0.0);
+                self.planner.push_stop(*seconds, ());
             }
             BlockKind::Verbatim(v) => {
                 t.verbatim += 1;
                 self.last.forget(v.clobbers);
+                self.planner.push_stop(0.0, ());
             }
-            BlockKind::Command(c) => self.last.forget(c.clobbers),
+            BlockKind::Command(c) if !c.clobbers.is_empty() => {
+                self.last.forget(c.clobbers);
+                self.planner.push_stop(0.0, ());
+            }
             _ => {}
+        }
+        // Only the total time is needed: timed items are dropped as they are finished.
+        while self.planner.pop().is_some() {}
+    }
+
+    /// Ends the program: plans the moves still queued and completes the time.
+    pub fn end(&mut self) {
+        if !self.finished {
+            self.planner.finish();
+            while self.planner.pop().is_some() {}
+            self.finished = true;
+        }
+        self.totals.seconds = self.planner.time();
+    }
+
+    fn timing_name(&self) -> &'static str {
+        match self.timing() {
+            Timing::ConstantVelocity => "constant velocity",
+            Timing::Trapezoid => "trapezoid",
         }
     }
 
-    /// The report text.
+    /// The report text (a note on standard error when run as a pass).
     pub fn report(&self) -> String {
         let t = &self.totals;
         let mut s = format!(
             "stats: {} blocks; moves: {} rapid, {} linear, {} arc; {} comments; {} passed through as text\n\
-             path: {:.3} mm feed, {:.3} mm rapid; estimated time {:.1} s (no acceleration)",
+             path: {:.3} mm feed, {:.3} mm rapid; extruded {:.5} ({:.5} retracted); time {:.1} s ({})",
             t.blocks,
             t.moves[0],
             t.moves[1],
@@ -141,50 +259,74 @@ impl Stats {
             t.verbatim,
             t.feed_mm,
             t.rapid_mm,
-            t.seconds
+            t.extruded,
+            t.retracted,
+            t.seconds,
+            self.timing_name(),
         );
-        if let Some((lo, hi)) = t.bounds {
-            s.push_str(&format!(
-                "\nbounds: X {:.3}..{:.3}, Y {:.3}..{:.3}, Z {:.3}..{:.3}",
-                lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
-            ));
+        for (name, b) in [("bounds", t.bounds), ("extruded bounds", t.extruded_bounds)] {
+            if let Some((lo, hi)) = b {
+                s.push_str(&format!(
+                    "\n{name}: X {:.3}..{:.3}, Y {:.3}..{:.3}, Z {:.3}..{:.3}",
+                    lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+                ));
+            }
         }
         s
     }
-}
 
-fn xyz_distance(a: &Joints, b: &Joints) -> f64 {
-    let mut sum = 0.0;
-    for ax in [Axis::X, Axis::Y, Axis::Z] {
-        if let (Some(p), Some(q)) = (a.get(ax), b.get(ax)) {
-            sum += (q - p).powi(2);
+    /// The table `ncpost stats` prints.
+    pub fn table(&self) -> String {
+        let t = &self.totals;
+        let hms = {
+            let s = t.seconds.max(0.0).round() as u64;
+            format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+        };
+        let mut rows: Vec<(String, String)> = vec![
+            (
+                "time".into(),
+                format!("{:.1} s ({hms}, {})", t.seconds, self.timing_name()),
+            ),
+            ("dwell".into(), format!("{:.1} s", t.dwell_seconds)),
+            ("feed length".into(), format!("{:.3} mm", t.feed_mm)),
+            ("rapid length".into(), format!("{:.3} mm", t.rapid_mm)),
+            (
+                "extruding length".into(),
+                format!("{:.3} mm in {} moves", t.extruding_mm, t.extruding_moves),
+            ),
+            ("extruded".into(), format!("{:.5}", t.extruded)),
+            ("retracted".into(), format!("{:.5}", t.retracted)),
+            (
+                "net extruded".into(),
+                format!("{:.5}", t.extruded - t.retracted),
+            ),
+        ];
+        for (name, b) in [("bounds", t.bounds), ("extruded bounds", t.extruded_bounds)] {
+            let v = match b {
+                Some((lo, hi)) => format!(
+                    "X {:.3}..{:.3}  Y {:.3}..{:.3}  Z {:.3}..{:.3}",
+                    lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
+                ),
+                None => "-".into(),
+            };
+            rows.push((name.into(), v));
         }
+        rows.push(("blocks".into(), t.blocks.to_string()));
+        rows.push((
+            "moves".into(),
+            format!(
+                "{} rapid, {} linear, {} arc",
+                t.moves[0], t.moves[1], t.moves[2]
+            ),
+        ));
+        rows.push(("comments".into(), t.comments.to_string()));
+        rows.push(("passed as text".into(), t.verbatim.to_string()));
+        let mut s = String::new();
+        for (k, v) in rows {
+            s.push_str(&format!("{k:<17} {v}\n"));
+        }
+        s
     }
-    sum.sqrt()
-}
-
-/// Length of a (helical) arc from `a` to `b`.
-fn arc_length(a: &Joints, b: &Joints, arc: &crate::ir::Arc) -> f64 {
-    let (u, v, n) = arc.plane.axes();
-    let (Some(su), Some(sv), Some(eu), Some(ev)) = (a.get(u), a.get(v), b.get(u), b.get(v)) else {
-        return xyz_distance(a, b);
-    };
-    let (cu, cv) = (arc.center[u.index()], arc.center[v.index()]);
-    let r = (su - cu).hypot(sv - cv);
-    let a0 = (sv - cv).atan2(su - cu);
-    let a1 = (ev - cv).atan2(eu - cu);
-    let mut sweep = if arc.clockwise { a0 - a1 } else { a1 - a0 };
-    let tau = std::f64::consts::TAU;
-    sweep = sweep.rem_euclid(tau);
-    if sweep < 1e-12 {
-        sweep = tau;
-    }
-    sweep += tau * arc.extra_turns as f64;
-    let dn = match (a.get(n), b.get(n)) {
-        (Some(p), Some(q)) => q - p,
-        _ => 0.0,
-    };
-    (r * sweep).hypot(dn)
 }
 
 impl Pass for Stats {
@@ -198,6 +340,24 @@ impl Pass for Stats {
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {
+        self.end();
         out.diag(Diagnostic::note("stats::report", self.report()));
+    }
+}
+
+/// As a backend, `stats` counts what reaches the end of a pipeline (`ncpost stats`).
+impl Backend for Stats {
+    fn write_block(
+        &mut self,
+        block: &Block,
+        _diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), Diagnostic> {
+        self.count(block);
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), Diagnostic> {
+        self.end();
+        Ok(())
     }
 }
