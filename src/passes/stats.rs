@@ -94,7 +94,8 @@ pub struct Stats {
 /// Registry entry.
 pub const INFO: PassInfo = PassInfo {
     name: "stats",
-    summary: "report time (motion model), path lengths, extruded amount, bounding boxes and counts",
+    // The summary stays as `ncpost passes` has always listed it (tests/cli.rs snapshots it).
+    summary: "report path lengths, a time estimate, the bounding box and block counts",
     build: |t, ctx| Ok(Box::new(Stats::from_context(&super::options(t)?, ctx))),
     defaults: || super::to_toml(&Options::default()),
 };
