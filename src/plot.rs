@@ -333,7 +333,7 @@ impl SpeedPlot {
     }
 
     /// The plot for a preset: the controller of its `[polar]` table (with its r and θ
-    /// axes) or `[machine]` table, `timing` overriding the controller's, rapids at
+    /// axes, see [`crate::motion::polar_axes`]) or `[machine]` table, `timing` overriding the controller's, rapids at
     /// `rapid_feed` mm/min.
     pub fn for_preset(
         preset: &crate::preset::Preset,
@@ -347,10 +347,7 @@ impl SpeedPlot {
             ..crate::passes::Context::default()
         };
         let model = crate::motion::Model::from_context(&ctx, None).with_rapid_feed(rapid_feed);
-        SpeedPlot::new(
-            model,
-            preset.polar.as_ref().map(|p| (p.r_axis, p.theta_axis)),
-        )
+        SpeedPlot::new(model, crate::motion::polar_axes(preset))
     }
 
     /// The samples so far (complete after [`Backend::finish`]); thinned on long programs.

@@ -265,6 +265,51 @@ fn lookahead_is_bounded() {
     assert!(t64 <= t8 + 1e-12, "{t64} > {t8}");
 }
 
+#[test]
+fn splitting_a_move_at_a_time_keeps_the_timing() {
+    // The valve pass's operation: find the point of a move at a given time, split there.
+    let mut c = controller(FeedRule::Nist);
+    c.acceleration = PerAxis {
+        x: Some(200.0),
+        y: Some(200.0),
+        ..PerAxis::default()
+    };
+    c.jerk = PerAxis {
+        x: Some(300.0),
+        y: Some(300.0),
+        ..PerAxis::default()
+    };
+    let pts = [xy(0.0, 0.0), xy(40.0, 0.0), xy(40.0, 30.0), xy(0.0, 30.0)];
+    for timing in [Timing::ConstantVelocity, Timing::Trapezoid] {
+        let m = Model::new(&c).with_timing(timing);
+        let plan = |path: &[Joints]| {
+            let mut planner = Planner::new(m.clone());
+            for w in path.windows(2) {
+                planner.push_move(m.linear(&w[0], &w[1], 3000.0), ());
+            }
+            planner.finish();
+            std::iter::from_fn(|| planner.pop()).collect::<Vec<_>>()
+        };
+        let whole = plan(&pts);
+        // 0.3 s before the third move starts, inside the second move.
+        let at = whole[2].start - 0.3;
+        let f = whole[1]
+            .fraction_at_time(at)
+            .expect("inside the second move");
+        assert!(close(whole[1].time_at_fraction(f), at, 1e-9));
+        let mid = ncpost::motion::lerp(&pts[1], &pts[2], f);
+        let split = plan(&[pts[0], pts[1], mid, pts[2], pts[3]]);
+        assert_eq!(split.len(), 4);
+        assert!(
+            close(split[2].start, at, 1e-9),
+            "{timing:?}: {} vs {at}",
+            split[2].start
+        );
+        assert!(close(split[2].end(), whole[1].end(), 1e-9));
+        assert!(close(split[3].end(), whole[2].end(), 1e-9), "{timing:?}");
+    }
+}
+
 fn program(points: &[(f64, f64, f64)]) -> String {
     let mut g = String::from("G0 X0 Y0 Z0\n");
     for (x, y, f) in points {
@@ -414,6 +459,42 @@ fn polar_tool_speed_matches_the_formula() {
     // A Cartesian map gives the XY speed.
     let v = ncpost::motion::tool_speed(&p, &from, &to, 0.1, |j| Point3::new(j.values[0], 0.0, 0.0));
     assert!(close(v, 40.0 / p.duration(), 1e-6));
+}
+
+#[test]
+fn stats_of_a_polar_program_are_cartesian() {
+    // A quarter circle of radius 10 as 90 one-degree joint moves (r on X, θ on Y), then
+    // a radial move out to r = 20 at θ = 90: the tool path is 5 pi + 10 mm long.
+    let mut g = String::from("G0 X10 Y0\nG1 F600\n");
+    for k in 1..=90 {
+        g.push_str(&format!("G1 Y{k} E{}\n", k as f64 * 0.01));
+    }
+    g.push_str("G1 X20\n");
+    let program = parse_str(&g, &Options::default()).unwrap();
+    let model = Model::new(&controller(FeedRule::Euclidean));
+    let mut stats = ncpost::passes::stats::Stats::with_model(model).with_polar(Axis::X, Axis::Y);
+    let mut diags = Vec::new();
+    for b in &program.blocks {
+        stats.write_block(b, &mut diags).unwrap();
+    }
+    Backend::finish(&mut stats).unwrap();
+    let t = &stats.totals;
+    let arc = 10.0 * std::f64::consts::FRAC_PI_2;
+    // Chords of one degree are shorter than the arc by 1 - sinc: 13 ppm.
+    assert!(close(t.feed_mm, arc + 10.0, 2e-5), "{}", t.feed_mm);
+    assert!(close(t.extruding_mm, arc, 2e-5), "{}", t.extruding_mm);
+    let [x, y, z] = t.bounds;
+    let (x, y) = (x.unwrap(), y.unwrap());
+    assert!(close(x.0, 0.0, 1e-9) && close(x.1, 10.0, 1e-9), "{x:?}");
+    assert!(close(y.0, 0.0, 1e-9) && close(y.1, 20.0, 1e-9), "{y:?}");
+    assert_eq!(z, None);
+    // Time: Euclidean joint distance (1 deg + ... + 10 mm) at 10 units/s.
+    assert!(
+        close(t.seconds, (90.0 + 10.0) / 10.0, 1e-12),
+        "{}",
+        t.seconds
+    );
+    assert!(stats.table().contains("Z -"));
 }
 
 // ------------------------------------------------------------ command line

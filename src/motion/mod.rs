@@ -599,6 +599,18 @@ pub fn polar_point(j: &Joints, r_axis: Axis, theta_axis: Axis) -> Point3<f64> {
     Point3::new(r * th.cos(), r * th.sin(), j.values[Axis::Z.index()])
 }
 
+/// The (r, θ) axes of a preset's output when its blocks end up in polar joints: the
+/// preset has a `[polar]` table and no `polar-ik` pass with `kinematics = "controller"`
+/// (which keeps XY for firmware that does the polar kinematics itself).
+pub fn polar_axes(preset: &crate::preset::Preset) -> Option<(Axis, Axis)> {
+    let polar = preset.polar.as_ref()?;
+    let keeps_xy = preset.passes.iter().any(|p| {
+        p.name == "polar-ik"
+            && p.options.get("kinematics").and_then(|v| v.as_str()) == Some("controller")
+    });
+    (!keeps_xy).then_some((polar.r_axis, polar.theta_axis))
+}
+
 /// One item of the planned program, with its time.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Timed<T> {
@@ -620,6 +632,42 @@ impl<T> Timed<T> {
     /// Seconds from the program start at which it ends.
     pub fn end(&self) -> f64 {
         self.start + self.duration()
+    }
+
+    /// The fraction of this move done at `time` (seconds from the program start), if
+    /// the move runs then: the point to split it at for an event at `time` (a valve
+    /// command issued a delay before an extrusion starts). Splitting a move there does
+    /// not change the timing: the two parts are collinear, so the junction between them
+    /// is taken at full speed (as long as the extra block does not push a stop the
+    /// look-ahead must see out of its window).
+    ///
+    /// ```
+    /// use ncpost::ir::{Axis, Joints};
+    /// use ncpost::motion::{Model, Planner};
+    /// let (mut a, mut b) = (Joints::default(), Joints::default());
+    /// a.set(Axis::X, 0.0);
+    /// b.set(Axis::X, 10.0);
+    /// let model = Model::default();
+    /// let mut planner = Planner::new(model.clone());
+    /// planner.push_move(model.linear(&a, &b, 600.0), ()); // 1 s
+    /// planner.finish();
+    /// let item = planner.pop().unwrap();
+    /// assert_eq!(item.fraction_at_time(0.25), Some(0.25));
+    /// assert_eq!(item.fraction_at_time(2.0), None);
+    /// ```
+    pub fn fraction_at_time(&self, time: f64) -> Option<f64> {
+        let (_, p) = self.motion?;
+        let t = time - self.start;
+        (t >= 0.0 && t <= p.duration()).then(|| p.fraction_at(t))
+    }
+
+    /// Seconds from the program start at which `fraction` of this move is done (the
+    /// start time for an item that is not a move).
+    pub fn time_at_fraction(&self, fraction: f64) -> f64 {
+        self.start
+            + self
+                .motion
+                .map_or(0.0, |(_, p)| p.time_at_fraction(fraction))
     }
 }
 
@@ -644,6 +692,8 @@ pub struct Planner<T> {
     time: f64,
     /// Exit speed and segment of the last move handed out, while the machine is moving.
     last: Option<(Segment, f64)>,
+    /// The queued moves, reused by the backward pass.
+    scratch: Vec<Segment>,
 }
 
 impl<T> Planner<T> {
@@ -656,6 +706,7 @@ impl<T> Planner<T> {
             ready: VecDeque::new(),
             time: 0.0,
             last: None,
+            scratch: Vec::new(),
         }
     }
 
@@ -671,7 +722,9 @@ impl<T> Planner<T> {
 
     /// Adds a move.
     pub fn push_move(&mut self, seg: Segment, payload: T) {
-        if !seg.moves() && self.queue.is_empty() {
+        let instant = self.model.timing == Timing::ConstantVelocity || !seg.moves();
+        if instant && self.queue.is_empty() {
+            // Nothing to plan: constant velocity needs no look-ahead.
             self.hand_out(Some(seg), 0.0, payload, 0.0, 0.0);
             return;
         }
@@ -737,12 +790,15 @@ impl<T> Planner<T> {
     /// Fixes the exit speed of the first queued move and hands it (and the items before
     /// it) out.
     fn release_first_move(&mut self) {
-        let moving: Vec<Segment> = self
-            .queue
-            .iter()
-            .filter_map(|p| p.seg.filter(|s| s.moves()))
-            .collect();
+        let mut moving = std::mem::take(&mut self.scratch);
+        moving.clear();
+        moving.extend(
+            self.queue
+                .iter()
+                .filter_map(|p| p.seg.filter(|s| s.moves())),
+        );
         let Some(first) = moving.first().copied() else {
+            self.scratch = moving;
             return;
         };
         // Backward pass: the fastest exit of each move from which the machine can still
@@ -762,6 +818,7 @@ impl<T> Planner<T> {
         };
         // Forward pass for the first move: no faster than it can reach from its entry.
         let exit = exit.min((entry * entry + 2.0 * first.accel * first.length).sqrt());
+        self.scratch = moving;
         while let Some(p) = self.queue.pop_front() {
             let is_first = p.seg.is_some_and(|s| s.moves());
             self.hand_out(p.seg, p.dwell, p.payload, entry, exit);
@@ -773,7 +830,11 @@ impl<T> Planner<T> {
     }
 
     fn hand_out(&mut self, seg: Option<Segment>, dwell: f64, payload: T, v0: f64, v1: f64) {
-        let motion = seg.map(|s| {
+        let constant = self.model.timing == Timing::ConstantVelocity;
+        let motion = seg.map(|mut s| {
+            if constant {
+                s.accel = f64::INFINITY;
+            }
             let p = Profile::new(&s, v0, v1);
             if s.moves() {
                 self.last = Some((s, p.v_exit));

@@ -8,7 +8,8 @@
 //! [`Stats::table`] on standard output instead ([`Stats`] is also a [`Backend`]).
 //!
 //! Lengths are XYZ lengths of the joint values as the IR holds them (arcs by their
-//! helical length); the extruded amount is the sum of the positive E steps, retraction
+//! helical length), or of the tool's Cartesian path on a polar machine
+//! ([`Stats::with_polar`], which `ncpost stats` uses for `[polar]` presets); the extruded amount is the sum of the positive E steps, retraction
 //! the sum of the negative ones. Bounding boxes are over the XYZ targets of all moves and
 //! over the two ends of the moves that extrude.
 
@@ -46,8 +47,8 @@ impl Default for Options {
     }
 }
 
-/// An axis-aligned box over XYZ: (min, max).
-pub type Bounds = ([f64; 3], [f64; 3]);
+/// An axis-aligned box over X, Y, Z: per axis (min, max), `None` for an axis never known.
+pub type Bounds = [Option<(f64, f64)>; 3];
 
 /// Totals collected by `stats`.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -73,9 +74,9 @@ pub struct Totals {
     /// Of which dwells, seconds.
     pub dwell_seconds: f64,
     /// Bounding box of all XYZ targets.
-    pub bounds: Option<Bounds>,
+    pub bounds: Bounds,
     /// Bounding box of the moves that extrude.
-    pub extruded_bounds: Option<Bounds>,
+    pub extruded_bounds: Bounds,
     /// Blocks passed through as text.
     pub verbatim: u64,
     /// Comments.
@@ -87,6 +88,7 @@ pub struct Stats {
     planner: Planner<()>,
     last: Joints,
     finished: bool,
+    polar: Option<(Axis, Axis)>,
     /// What has been counted so far (`seconds` is complete after the end).
     pub totals: Totals,
 }
@@ -100,18 +102,27 @@ pub const INFO: PassInfo = PassInfo {
     defaults: || super::to_toml(&Options::default()),
 };
 
-fn grow(bounds: &mut Option<Bounds>, p: [f64; 3]) {
-    *bounds = Some(match *bounds {
-        None => (p, p),
-        Some((lo, hi)) => (
-            std::array::from_fn(|k| lo[k].min(p[k])),
-            std::array::from_fn(|k| hi[k].max(p[k])),
-        ),
-    });
+fn grow(bounds: &mut Bounds, p: [Option<f64>; 3]) {
+    for (b, v) in bounds.iter_mut().zip(p) {
+        if let Some(v) = v {
+            *b = Some(b.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))));
+        }
+    }
 }
 
-fn xyz(j: &Joints) -> Option<[f64; 3]> {
-    Some([j.get(Axis::X)?, j.get(Axis::Y)?, j.get(Axis::Z)?])
+fn bounds_text(b: &Bounds, sep: &str) -> Option<String> {
+    if b.iter().all(Option::is_none) {
+        return None;
+    }
+    let parts: Vec<String> = ["X", "Y", "Z"]
+        .iter()
+        .zip(b)
+        .map(|(n, r)| match r {
+            Some((lo, hi)) => format!("{n} {lo:.3}..{hi:.3}"),
+            None => format!("{n} -"),
+        })
+        .collect();
+    Some(parts.join(sep))
 }
 
 impl Stats {
@@ -139,7 +150,29 @@ impl Stats {
             planner: Planner::new(model),
             last: Joints::default(),
             finished: false,
+            polar: None,
             totals: Totals::default(),
+        }
+    }
+
+    /// Counts lengths and bounds on the tool's Cartesian path of a polar machine whose
+    /// blocks carry r on `r_axis` and θ (degrees) on `theta_axis`: each move's length is
+    /// the chord between its mapped ends (the `polar-ik` output is densified so the chords
+    /// follow the path within its tolerance).
+    pub fn with_polar(mut self, r_axis: Axis, theta_axis: Axis) -> Self {
+        self.polar = Some((r_axis, theta_axis));
+        self
+    }
+
+    /// The tool point of `j`: X, Y, Z as known (mapped from r, θ on a polar machine).
+    fn point(&self, j: &Joints) -> [Option<f64>; 3] {
+        match self.polar {
+            Some((r, th)) if j.known.contains(r) && j.known.contains(th) => {
+                let p = motion::polar_point(j, r, th);
+                [Some(p.x), Some(p.y), j.get(Axis::Z)]
+            }
+            Some(_) => [None, None, j.get(Axis::Z)],
+            None => [j.get(Axis::X), j.get(Axis::Y), j.get(Axis::Z)],
         }
     }
 
@@ -149,6 +182,13 @@ impl Stats {
     }
 
     fn count(&mut self, block: &Block) {
+        let (from, to) = match &block.kind {
+            BlockKind::Motion(m) => match &m.target {
+                Target::Joints(end) => (self.point(&self.last), self.point(end)),
+                Target::Pose(_) => ([None; 3], [None; 3]),
+            },
+            _ => ([None; 3], [None; 3]),
+        };
         let t = &mut self.totals;
         t.blocks += 1;
         t.comments += block.comments.len() as u64;
@@ -158,11 +198,12 @@ impl Stats {
                     return;
                 };
                 let length = match m.kind {
-                    MotionKind::Arc(arc) => motion::arc_length(&self.last, end, &arc),
+                    MotionKind::Arc(arc) if self.polar.is_none() => {
+                        motion::arc_length(&self.last, end, &arc)
+                    }
                     _ => {
-                        let d: f64 = [Axis::X, Axis::Y, Axis::Z]
-                            .iter()
-                            .filter_map(|&a| Some((end.get(a)? - self.last.get(a)?).powi(2)))
+                        let d: f64 = (0..3)
+                            .filter_map(|k| Some((to[k]? - from[k]?).powi(2)))
                             .sum();
                         d.sqrt()
                     }
@@ -189,15 +230,12 @@ impl Stats {
                     t.extruded += de;
                     t.extruding_moves += 1;
                     t.extruding_mm += length;
-                    for p in [xyz(&self.last), xyz(end)].into_iter().flatten() {
-                        grow(&mut t.extruded_bounds, p);
-                    }
+                    grow(&mut t.extruded_bounds, from);
+                    grow(&mut t.extruded_bounds, to);
                 } else {
                     t.retracted -= de;
                 }
-                if let Some(p) = xyz(end) {
-                    grow(&mut t.bounds, p);
-                }
+                grow(&mut t.bounds, to);
                 if let Some(seg) = self.planner.model().motion(&self.last, m) {
                     self.planner.push_move(seg, ());
                 }
@@ -266,11 +304,8 @@ impl Stats {
             self.timing_name(),
         );
         for (name, b) in [("bounds", t.bounds), ("extruded bounds", t.extruded_bounds)] {
-            if let Some((lo, hi)) = b {
-                s.push_str(&format!(
-                    "\n{name}: X {:.3}..{:.3}, Y {:.3}..{:.3}, Z {:.3}..{:.3}",
-                    lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
-                ));
+            if let Some(text) = bounds_text(&b, ", ") {
+                s.push_str(&format!("\n{name}: {text}"));
             }
         }
         s
@@ -303,13 +338,7 @@ impl Stats {
             ),
         ];
         for (name, b) in [("bounds", t.bounds), ("extruded bounds", t.extruded_bounds)] {
-            let v = match b {
-                Some((lo, hi)) => format!(
-                    "X {:.3}..{:.3}  Y {:.3}..{:.3}  Z {:.3}..{:.3}",
-                    lo[0], hi[0], lo[1], hi[1], lo[2], hi[2]
-                ),
-                None => "-".into(),
-            };
+            let v = bounds_text(&b, "  ").unwrap_or_else(|| "-".into());
             rows.push((name.into(), v));
         }
         rows.push(("blocks".into(), t.blocks.to_string()));
