@@ -219,6 +219,11 @@ fn junctions_follow_the_jerk_rule() {
     let per_block = 0.1 + 0.05 + (50.0 - 0.5 - 0.375) / 10.0;
     let t = items.last().unwrap().end();
     assert!(close(t, 2.0 * per_block, 1e-12), "{t}");
+    // The extruder is not jerk-limited: a change of extrusion per mm at a collinear
+    // junction does not slow the machine down.
+    let m = accel_model(100.0, 100.0);
+    let t = total(&m, "G0 X0 Y0 Z0\nG1 X50 E1 F600\nG1 X100 E3\n");
+    assert!(close(t, 10.1, 1e-12), "{t}");
     // A dwell stops the machine even between collinear blocks.
     let m = accel_model(100.0, 100.0);
     let t = total(&m, "G0 X0 Y0 Z0\nG1 X50 F600\nG4 P0\nG1 X100\n");
@@ -554,8 +559,11 @@ fn stats_table_on_a_sliced_file() {
         let line = s.lines().find(|l| l.starts_with("time")).unwrap();
         line.split_whitespace().nth(1).unwrap().parse().unwrap()
     };
-    // PrusaSlicer estimates 32 min 6 s for this file: the two models bracket it.
-    assert!(secs(&cv) < 32.0 * 60.0 + 6.0 && secs(&tr) > 32.0 * 60.0 + 6.0);
+    // PrusaSlicer estimates 32 min 6 s for this file (its own planner, the same machine
+    // limits): the trapezoid model agrees within 1 %, constant velocity is 5 % short.
+    let prusa = 32.0 * 60.0 + 6.0;
+    assert!(close(secs(&tr), prusa, 0.01), "{}", secs(&tr));
+    assert!(secs(&cv) < 0.96 * prusa, "{}", secs(&cv));
 }
 
 #[test]

@@ -22,7 +22,10 @@
 //! # Junctions
 //! The speed at the junction of two blocks follows RepRapFirmware's "jerk" rule (`M566`):
 //! each axis may change its speed instantly by at most `controller.jerk` (mm/min or
-//! deg/min, per axis; an axis without a value may not change speed at all). With block
+//! deg/min, per axis; an axis of X, Y, Z, A, B, C without a value may not change speed at
+//! all). The controller table has no entries for U, V, W and E, so they limit nothing:
+//! speed, acceleration nor jerk (an extruder's rate changing between two printing moves
+//! does not stop the machine). With block
 //! directions `u1`, `u2` (joint delta per unit rule distance) the junction speed `v` is the
 //! largest one with `v * |u2_k - u1_k| <= jerk_k` for every axis, and no more than either
 //! block's top speed. So two collinear blocks run through at full speed, a corner on
@@ -143,7 +146,11 @@ impl Model {
             lookahead: controller.lookahead.max(1),
             max_speed: per_axis(&controller.max_feed, 1.0 / 60.0),
             accel: per_axis(&controller.acceleration, 1.0),
-            jerk: std::array::from_fn(|k| jerk[k].unwrap_or(0.0)),
+            // Only X..C can be given; the others (U, V, W, E) are never limited.
+            jerk: std::array::from_fn(|k| match Axis::ALL[k] {
+                Axis::U | Axis::V | Axis::W | Axis::E => f64::INFINITY,
+                _ => jerk[k].unwrap_or(0.0),
+            }),
         }
     }
 
