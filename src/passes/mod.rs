@@ -8,6 +8,7 @@ pub mod densify;
 pub mod feed;
 pub mod ik;
 pub mod limits;
+pub mod polar_ik;
 pub mod stats;
 pub mod unwrap_rotary;
 pub mod verify;
@@ -104,6 +105,7 @@ pub const REGISTRY: &[PassInfo] = &[
     densify::INFO,
     feed::INFO,
     limits::INFO,
+    polar_ik::INFO,
 ];
 
 /// The registry entry for `name`.
