@@ -65,7 +65,10 @@ pub const BUILTIN: &[(&str, &str)] = &[
     ("trunnion-bc", include_str!("../passes/trunnion-bc.toml")),
     ("head-table", include_str!("../passes/head-table.toml")),
     ("head-head-ab", include_str!("../passes/head-head-ab.toml")),
-    ("polar-printer", include_str!("../passes/polar-printer.toml")),
+    (
+        "polar-printer",
+        include_str!("../passes/polar-printer.toml"),
+    ),
 ];
 
 impl Preset {

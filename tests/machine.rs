@@ -175,7 +175,7 @@ fn zero_offsets_shift_the_joint_values() {
         for (x, y) in a.iter().zip(&b) {
             assert!(close(y.angles[0] - x.angles[0], 0.35, 1e-9));
             let dc = (y.angles[1] - x.angles[1] + 1.2).rem_euclid(360.0);
-            assert!(dc < 1e-9 || dc > 360.0 - 1e-9, "{x:?} {y:?}");
+            assert!(!(1e-9..=360.0 - 1e-9).contains(&dc), "{x:?} {y:?}");
             let xyz = calibrated.linear(&tip, y.angles);
             let pose = calibrated.forward(&xyz, y.angles);
             assert!((pose.tip - tip).norm() < 1e-9);
