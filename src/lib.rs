@@ -18,6 +18,7 @@
 pub mod back;
 pub mod diag;
 pub mod front;
+pub mod heightmap;
 pub mod ir;
 pub mod machine;
 pub mod motion;

@@ -60,6 +60,8 @@
 //! assert!((timed.duration() - 10.1).abs() < 1e-9);
 //! ```
 
+pub mod arc;
+
 use std::collections::VecDeque;
 
 use nalgebra::Point3;

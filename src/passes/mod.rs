@@ -5,9 +5,13 @@
 //! which is also where the command line gets its list of valid names.
 
 pub mod densify;
+pub mod expand_subprograms;
 pub mod feed;
 pub mod ik;
+pub mod heightmap;
 pub mod limits;
+pub mod linearize_arcs;
+pub mod normalize;
 pub mod polar_ik;
 pub mod stats;
 pub mod unwrap_rotary;
@@ -106,6 +110,10 @@ pub const REGISTRY: &[PassInfo] = &[
     feed::INFO,
     limits::INFO,
     polar_ik::INFO,
+    linearize_arcs::INFO,
+    normalize::INFO,
+    heightmap::INFO,
+    expand_subprograms::INFO,
 ];
 
 /// The registry entry for `name`.

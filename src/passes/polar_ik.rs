@@ -443,47 +443,10 @@ fn refine(
 /// assert!(pts.iter().all(|p| p.get(Axis::Y).unwrap() >= 0.0)); // counter-clockwise: over +Y
 /// ```
 pub fn arc_points(from: &Joints, to: &Joints, arc: &Arc, tolerance: f64) -> Vec<Joints> {
-    let (a1, a2, _) = arc.plane.axes();
-    let c = [arc.center[a1.index().min(2)], arc.center[a2.index().min(2)]];
-    let (u0, v0) = (
-        from.values[a1.index()] - c[0],
-        from.values[a2.index()] - c[1],
-    );
-    let (u1, v1) = (to.values[a1.index()] - c[0], to.values[a2.index()] - c[1]);
-    let (r0, r1) = (u0.hypot(v0), u1.hypot(v1));
-    let (f0, f1) = (v0.atan2(u0), v1.atan2(u1));
-    let tau = std::f64::consts::TAU;
-    let mut sweep = f1 - f0;
-    if arc.clockwise {
-        while sweep >= 0.0 {
-            sweep -= tau;
-        }
-        sweep -= tau * f64::from(arc.extra_turns);
-    } else {
-        while sweep <= 0.0 {
-            sweep += tau;
-        }
-        sweep += tau * f64::from(arc.extra_turns);
+    match crate::motion::arc::ArcPath::new(from, to, arc) {
+        Some(path) => path.chords(tolerance),
+        None => vec![*to],
     }
-    let r = r0.max(r1);
-    let step = if r > tolerance {
-        2.0 * (1.0 - tolerance / r).acos()
-    } else {
-        std::f64::consts::PI
-    };
-    let n = ((sweep.abs() / step).ceil() as usize).clamp(1, 1_000_000);
-    let mut points = Vec::with_capacity(n);
-    for k in 1..n {
-        let t = k as f64 / n as f64;
-        let mut j = lerp(from, to, t);
-        let f = f0 + sweep * t;
-        let rr = r0 + (r1 - r0) * t;
-        j.values[a1.index()] = c[0] + rr * f.cos();
-        j.values[a2.index()] = c[1] + rr * f.sin();
-        points.push(j);
-    }
-    points.push(*to);
-    points
 }
 
 /// Joints at `t` of the way from `a` to `b` (axes known in `b`; those unknown in `a` take

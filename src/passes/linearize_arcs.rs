@@ -1,0 +1,169 @@
+//! `linearize-arcs`: cut every G2/G3 arc (any plane, helical, full circles, `P` turns) into G1 chords within a tolerance.
+//!
+//! For controllers or passes that want straight moves only (a Grbl without arcs,
+//! `heightmap`, which compensates straight moves). Each arc block becomes `n` G1 blocks
+//! with the arc's span; the block's comments go on the last one.
+//!
+//! # Options
+//! - `tolerance` (mm, default `0.002`): the largest distance of the arc from its chords
+//!   (the sagitta). The chord count is the smallest `n` with
+//!   `r (1 - cos(|sweep| / 2n)) <= tolerance` (`r` the larger of the start and end
+//!   radii), each chord over at most half a turn; it is computed and then checked.
+//!
+//! # Geometry
+//! The arc is the one [`crate::motion::arc`] defines and the frontend resolved: G17, G18
+//! and G19; `I J K` or `R` (the frontend turns `R` into a centre, a negative `R` being
+//! the arc of more than 180°); a full circle when the end point is the start; `P` adds
+//! full turns. Chord end points are computed on the arc (`c + r (cos φ, sin φ)` at
+//! equal angle steps) and the last is the block's target exactly. The normal axis
+//! (helical motion), E and every other known axis move linearly in the angle, so E is
+//! shared out by arc length. When the source's end point was off the circle (the
+//! frontend warned `gcode::arc-radius`) the radius goes linearly from the start to the
+//! end radius, as LinuxCNC moves.
+//!
+//! # Feed
+//! A G94 (or G95) feed is unchanged: the chords are the path at the same speed. Under
+//! G93 (inverse time) the block's time is shared equally by its equal chords: each
+//! chord's F is the block's F times `n`.
+//!
+//! # Limits
+//! An arc whose start is not known (not produced by the G-code frontend, which passes
+//! such lines through as text) and arcs on tool poses are passed on unchanged with a
+//! warning. An arc of huge radius at a tiny tolerance keeps at most
+//! [`crate::motion::arc::MAX_CHORDS`] chords.
+
+use serde::{Deserialize, Serialize};
+
+use super::{Output, Pass, PassInfo};
+use crate::diag::Diagnostic;
+use crate::ir::{Block, BlockKind, FeedMode, Joints, MotionKind, OffsetCode, Target};
+use crate::motion::arc::ArcPath;
+
+/// Options of `linearize-arcs`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Options {
+    /// Largest distance of the arc from its chords, mm.
+    pub tolerance: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { tolerance: 0.002 }
+    }
+}
+
+/// Registry entry.
+pub const INFO: PassInfo = PassInfo {
+    name: "linearize-arcs",
+    summary: "cut G2/G3 arcs (all planes, R and IJK, helical, full circles) into G1 chords within a tolerance",
+    build: |t, _ctx| Ok(Box::new(LinearizeArcs::new(super::options(t)?)?)),
+    defaults: || super::to_toml(&Options::default()),
+};
+
+/// The `linearize-arcs` pass.
+pub struct LinearizeArcs {
+    options: Options,
+    /// The position after the last block (IR frame).
+    pos: Joints,
+}
+
+impl LinearizeArcs {
+    /// The pass with `options` (the tolerance must be a number > 0).
+    pub fn new(options: Options) -> Result<LinearizeArcs, String> {
+        if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
+            return Err("tolerance must be a number > 0".into());
+        }
+        Ok(LinearizeArcs {
+            options,
+            pos: Joints::default(),
+        })
+    }
+}
+
+/// Follows the IR position through a block: motion targets, G53 moves and commands that
+/// make axes unknown, and G92 declarations of unknown axes.
+pub(crate) fn track(pos: &mut Joints, block: &Block) {
+    match &block.kind {
+        BlockKind::Motion(m) => match m.target.joints() {
+            Some(j) if !m.machine_frame => *pos = *j,
+            _ => pos.forget(m.written),
+        },
+        BlockKind::Command(c) => pos.forget(c.clobbers),
+        BlockKind::Verbatim(v) => pos.forget(v.clobbers),
+        BlockKind::Offset(o) if o.code == OffsetCode::Set => {
+            for a in o.declared.known.iter() {
+                if pos.get(a).is_none() {
+                    pos.set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
+                }
+            }
+        }
+        _ => {}
+    }
+}
+
+impl Pass for LinearizeArcs {
+    fn name(&self) -> &'static str {
+        "linearize-arcs"
+    }
+
+    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+        let BlockKind::Motion(m) = &block.kind else {
+            track(&mut self.pos, &block);
+            out.push(block);
+            return;
+        };
+        let MotionKind::Arc(arc) = m.kind else {
+            track(&mut self.pos, &block);
+            out.push(block);
+            return;
+        };
+        let path = match &m.target {
+            Target::Joints(to) if !m.machine_frame => ArcPath::new(&self.pos, to, &arc),
+            _ => None,
+        };
+        let Some(path) = path else {
+            out.diag(
+                Diagnostic::warning(
+                    "linearize-arcs::unknown-start",
+                    "this arc is passed on as an arc: its start (or its target) is not a known position",
+                )
+                .at_span(block.span)
+                .with_help("move to absolute positions in the arc's plane before the arc"),
+            );
+            track(&mut self.pos, &block);
+            out.push(block);
+            return;
+        };
+        let n = path.chord_count(self.options.tolerance);
+        let mut feed = m.feed;
+        if feed.mode == FeedMode::InverseTime {
+            feed.rate = feed.rate.map(|f| f * n as f64);
+        }
+        let mut written = m.written;
+        written.insert(path.u);
+        written.insert(path.v);
+        let Block {
+            span,
+            kind,
+            comments,
+        } = block;
+        let BlockKind::Motion(m) = kind else {
+            return;
+        };
+        let mut comments = Some(comments);
+        for (k, p) in path.points(n).enumerate() {
+            let mut piece = m.clone();
+            piece.kind = MotionKind::Linear;
+            piece.target = Target::Joints(p);
+            piece.feed = feed;
+            piece.written = written;
+            let mut b = Block::new(span, BlockKind::Motion(piece));
+            if k + 1 == n {
+                b.comments = comments.take().unwrap_or_default();
+            }
+            out.push(b);
+        }
+        self.pos = path.to;
+    }
+}
