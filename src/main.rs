@@ -38,6 +38,48 @@ enum Command {
     /// Facts about a preset's machine.
     #[command(subcommand)]
     Machine(MachineCommand),
+    /// Height maps for Z compensation (the `heightmap` pass).
+    #[command(subcommand)]
+    Heightmap(HeightmapCommand),
+}
+
+#[derive(Subcommand)]
+enum HeightmapCommand {
+    /// Write a program that probes a grid over an area: RepRapFirmware `M557` + `G29 S0`
+    /// (saves heightmap.csv), or a Grbl `G38.2` grid whose console log (`[PRB:...]`
+    /// reports) the heightmap pass reads.
+    ProbeProgram(ProbeArgs),
+}
+
+#[derive(Args)]
+struct ProbeArgs {
+    /// The area to cover, `X0,Y0,X1,Y1` in mm (work frame of the job).
+    #[arg(long, value_name = "X0,Y0,X1,Y1", allow_hyphen_values = true)]
+    area: String,
+    /// Grid pitch, mm; the last row and column move out so the grid covers the area.
+    #[arg(long)]
+    pitch: f64,
+    /// The controller.
+    #[arg(long, value_enum)]
+    emit: ProbeEmitArg,
+    /// Travel height between points, mm (grbl).
+    #[arg(long, default_value_t = 2.0, allow_hyphen_values = true)]
+    safe_z: f64,
+    /// Lowest Z a probe moves to, mm (grbl; G38.2 alarms if it does not touch).
+    #[arg(long, default_value_t = -1.0, allow_hyphen_values = true)]
+    depth: f64,
+    /// Probing feed, mm/min (grbl).
+    #[arg(long, default_value_t = 20.0)]
+    feed: f64,
+    /// Output file; `-` or absent for standard output.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum ProbeEmitArg {
+    Rrf,
+    Grbl,
 }
 
 #[derive(Subcommand)]
@@ -206,6 +248,53 @@ fn main() -> ExitCode {
         Command::Plot(args) => plot(&args),
         Command::Stats(args) => stats(&args),
         Command::Machine(MachineCommand::ConfigG(args)) => config_g(&args),
+        Command::Heightmap(HeightmapCommand::ProbeProgram(args)) => probe_program(&args),
+    }
+}
+
+fn probe_program(args: &ProbeArgs) -> ExitCode {
+    use ncpost::heightmap::{ProbeEmit, ProbeOptions};
+    let area: Vec<f64> = match args
+        .area
+        .split(',')
+        .map(|v| v.trim().parse::<f64>())
+        .collect::<Result<_, _>>()
+    {
+        Ok(v) => v,
+        Err(_) => return usage(format!("--area `{}` is not X0,Y0,X1,Y1", args.area)),
+    };
+    let [x0, y0, x1, y1] = area[..] else {
+        return usage(format!("--area `{}` is not X0,Y0,X1,Y1", args.area));
+    };
+    let options = ProbeOptions {
+        area: [x0, y0, x1, y1],
+        pitch: args.pitch,
+        emit: match args.emit {
+            ProbeEmitArg::Rrf => ProbeEmit::Rrf,
+            ProbeEmitArg::Grbl => ProbeEmit::Grbl,
+        },
+        safe_z: args.safe_z,
+        depth: args.depth,
+        feed: args.feed,
+    };
+    let text = match ncpost::heightmap::probe_program(&options) {
+        Ok(t) => t,
+        Err(e) => return usage(e),
+    };
+    match args.output.as_deref().filter(|o| o.as_os_str() != "-") {
+        None => {
+            print!("{text}");
+            ExitCode::SUCCESS
+        }
+        Some(path) => write_atomically(
+            path,
+            |out, _| {
+                out.write_all(text.as_bytes())
+                    .map(|_| ncpost::pipeline::Summary::default())
+                    .map_err(|e| Diagnostic::error("io::write", e.to_string()))
+            },
+            &mut Printer::new("-", true, MessageFormat::Human),
+        ),
     }
 }
 

@@ -140,7 +140,15 @@ impl Builder {
         };
         let mut passes = Vec::new();
         for spec in &self.preset.passes {
-            passes.push(passes::build(&spec.name, &spec.options, &context)?);
+            let mut options = spec.options.clone();
+            // expand-subprograms lowers subprogram bodies with the frontend's options.
+            if spec.name == "expand-subprograms"
+                && !options.contains_key("input")
+                && let Ok(toml::Value::Table(t)) = toml::Value::try_from(&self.preset.gcode_input)
+            {
+                options.insert("input".into(), toml::Value::Table(t));
+            }
+            passes.push(passes::build(&spec.name, &options, &context)?);
         }
         let dump_at = match &self.dump_after {
             None => None,

@@ -650,6 +650,13 @@ impl<W: Write> Emitter<W> {
                 self.text(if absolute { "G90" } else { "G91" });
                 self.modes.absolute = Some(absolute);
             }
+            // A subprogram call: its body starts in the caller's plane.
+            if let Some(plane) = modes.plane
+                && self.modes.plane != Some(plane)
+            {
+                self.text(plane.gcode());
+                self.modes.plane = Some(plane);
+            }
         }
         self.text(text);
         self.end_line(&comments, true)?;

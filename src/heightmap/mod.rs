@@ -110,7 +110,11 @@ impl HeightMap {
     /// assert!((map.height(5.0, 5.0).unwrap() - 0.1).abs() < 1e-12);
     /// ```
     pub fn parse(text: &str) -> Result<HeightMap, String> {
-        let first = text.lines().map(str::trim).find(|l| !l.is_empty()).unwrap_or("");
+        let first = text
+            .lines()
+            .map(str::trim)
+            .find(|l| !l.is_empty())
+            .unwrap_or("");
         if first.starts_with("RepRapFirmware height map file") {
             Self::parse_rrf(text)
         } else if text.contains("[PRB:") {
@@ -220,8 +224,12 @@ impl HeightMap {
         let mut header = [[0.0; 3]; 3];
         for (k, h) in header.iter_mut().enumerate() {
             let line = lines.next().ok_or("the bCNC probe file has no header")?;
-            let v = triple(line)
-                .ok_or_else(|| format!("header line {} of the bCNC probe file is not three numbers: `{line}`", k + 1))?;
+            let v = triple(line).ok_or_else(|| {
+                format!(
+                    "header line {} of the bCNC probe file is not three numbers: `{line}`",
+                    k + 1
+                )
+            })?;
             *h = v;
         }
         let points: Vec<[f64; 3]> = lines
@@ -621,7 +629,9 @@ pub fn probe_program(o: &ProbeOptions) -> Result<String, String> {
                 f(y0),
                 f(ye)
             );
-            t.push_str("(set the work origin on the board first; probe wired to the board and the tool)\n");
+            t.push_str(
+                "(set the work origin on the board first; probe wired to the board and the tool)\n",
+            );
             t.push_str("(Grbl answers each G38.2 with [PRB:x,y,z:1] in machine coordinates, in mm with $13=0)\n");
             t.push_str("(send $# before the run and save the whole console log; then --pass heightmap:map=LOG)\n");
             t.push_str("G21 G90\n");

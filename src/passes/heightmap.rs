@@ -198,7 +198,12 @@ impl Heightmap {
         &self.map
     }
 
-    fn report(&mut self, code: &'static str, out: &mut Output<'_>, make: impl FnOnce() -> Diagnostic) {
+    fn report(
+        &mut self,
+        code: &'static str,
+        out: &mut Output<'_>,
+        make: impl FnOnce() -> Diagnostic,
+    ) {
         let n = self.counts.entry(code).or_insert(0);
         *n += 1;
         if *n <= DIAG_CAP {
@@ -238,7 +243,12 @@ impl Heightmap {
     }
 
     /// Cuts the straight move `from` → `to` into compensated vertices (in `self.pieces`).
-    fn cut(&mut self, from: &Joints, to: &Joints, start_known: bool) -> Result<(), (Missing, f64, f64)> {
+    fn cut(
+        &mut self,
+        from: &Joints,
+        to: &Joints,
+        start_known: bool,
+    ) -> Result<(), (Missing, f64, f64)> {
         self.pieces.clear();
         let clamp = self.clamp();
         let (bx, by) = (to.values[Axis::X.index()], to.values[Axis::Y.index()]);
@@ -267,8 +277,15 @@ impl Heightmap {
         ts.push(1.0);
         ts.sort_by(f64::total_cmp);
         let tol = self.options.tolerance;
-        let vertex = |t: f64, map: &HeightMap, pieces: &mut Vec<(f64, Joints)>| -> Result<(), (Missing, f64, f64)> {
-            let mut j = if t >= 1.0 || !start_known { *to } else { lerp(from, to, t) };
+        let vertex = |t: f64,
+                      map: &HeightMap,
+                      pieces: &mut Vec<(f64, Joints)>|
+         -> Result<(), (Missing, f64, f64)> {
+            let mut j = if t >= 1.0 || !start_known {
+                *to
+            } else {
+                lerp(from, to, t)
+            };
             let (x, y) = (j.values[Axis::X.index()], j.values[Axis::Y.index()]);
             let h = map.height_at(x, y, clamp).map_err(|m| (m, x, y))?;
             j.values[Axis::Z.index()] += h;
@@ -287,10 +304,7 @@ impl Heightmap {
             let tm = 0.5 * (t0 + t1);
             let (xm, ym) = (ax + (bx - ax) * tm, ay + (by - ay) * tm);
             let cell = self.map.cell(xm, ym);
-            let corners = self
-                .map
-                .corners(cell.i, cell.j)
-                .map_err(|m| (m, xm, ym))?;
+            let corners = self.map.corners(cell.i, cell.j).map_err(|m| (m, xm, ym))?;
             let d = corners[0] - corners[1] - corners[2] + corners[3];
             let du = if cell.clamped_x {
                 0.0
@@ -305,7 +319,11 @@ impl Heightmap {
             let c = (d * du * dv).abs();
             let m = ((len * (c / (4.0 * tol)).sqrt()).ceil() as usize).clamp(1, 1_000_000);
             for k in 1..=m {
-                let t = if k == m { t1 } else { t0 + len * k as f64 / m as f64 };
+                let t = if k == m {
+                    t1
+                } else {
+                    t0 + len * k as f64 / m as f64
+                };
                 vertex(t, &self.map, &mut self.pieces)?;
             }
             t0 = t1;
@@ -353,9 +371,12 @@ impl Pass for Heightmap {
             _ => {
                 if !m.machine_frame {
                     self.report("heightmap::pose", out, || {
-                        Diagnostic::error("heightmap::pose", "heightmap needs machine positions, not tool poses")
-                            .at_span(block.span)
-                            .with_help("put heightmap after ik")
+                        Diagnostic::error(
+                            "heightmap::pose",
+                            "heightmap needs machine positions, not tool poses",
+                        )
+                        .at_span(block.span)
+                        .with_help("put heightmap after ik")
                     });
                 }
                 super::linearize_arcs::track(&mut self.pos, &block);
@@ -363,7 +384,9 @@ impl Pass for Heightmap {
                 return;
             }
         };
-        let known = [Axis::X, Axis::Y, Axis::Z].iter().all(|&a| to.known.contains(a));
+        let known = [Axis::X, Axis::Y, Axis::Z]
+            .iter()
+            .all(|&a| to.known.contains(a));
         if !known {
             self.report("heightmap::unknown", out, || {
                 Diagnostic::warning(
@@ -387,7 +410,11 @@ impl Pass for Heightmap {
             return;
         }
         self.pos = to;
-        let Block { span, kind, comments } = block;
+        let Block {
+            span,
+            kind,
+            comments,
+        } = block;
         let BlockKind::Motion(m) = kind else { return };
         let n = self.pieces.len();
         let mut comments = Some(comments);

@@ -7,8 +7,8 @@
 pub mod densify;
 pub mod expand_subprograms;
 pub mod feed;
-pub mod ik;
 pub mod heightmap;
+pub mod ik;
 pub mod limits;
 pub mod linearize_arcs;
 pub mod normalize;

@@ -87,7 +87,9 @@ pub struct Normalize {
 fn split_word(w: &str) -> Option<(char, &str)> {
     let mut chars = w.chars();
     let letter = chars.next()?.to_ascii_uppercase();
-    letter.is_ascii_alphabetic().then(|| (letter, chars.as_str()))
+    letter
+        .is_ascii_alphabetic()
+        .then_some((letter, chars.as_str()))
 }
 
 /// The G codes of a line (numbers after `G` outside comments), as written.
@@ -256,8 +258,10 @@ impl Pass for Normalize {
                             );
                         }
                         declares.push(a);
-                        self.pos
-                            .set(a, change.declared.values[a.index()] - change.offsets[a.index()]);
+                        self.pos.set(
+                            a,
+                            change.declared.values[a.index()] - change.offsets[a.index()],
+                        );
                         self.ever_known.insert(a);
                     }
                 }
@@ -280,15 +284,13 @@ impl Pass for Normalize {
                 out.push(b);
                 return;
             }
-            BlockKind::Motion(m) => {
-                match m.target.joints() {
-                    Some(j) if !m.machine_frame => {
-                        self.pos = *j;
-                        self.ever_known = self.ever_known.union(j.known);
-                    }
-                    _ => self.pos.forget(m.written),
+            BlockKind::Motion(m) => match m.target.joints() {
+                Some(j) if !m.machine_frame => {
+                    self.pos = *j;
+                    self.ever_known = self.ever_known.union(j.known);
                 }
-            }
+                _ => self.pos.forget(m.written),
+            },
             BlockKind::Command(cmd) => {
                 if let Some(modes) = cmd.modes {
                     let odd = modes.inch || modes.relative || self.offset_in_use(&cmd.text);
@@ -296,8 +298,13 @@ impl Pass for Normalize {
                         let codes = g_codes(&cmd.text);
                         let positional = !codes.is_empty()
                             && codes.iter().all(|&c| {
-                                c == 28.0 || c == 30.0 || (c > 38.0 && c < 39.0) || c == 90.0
-                                    || c == 91.0 || c == 20.0 || c == 21.0
+                                c == 28.0
+                                    || c == 30.0
+                                    || (c > 38.0 && c < 39.0)
+                                    || c == 90.0
+                                    || c == 91.0
+                                    || c == 20.0
+                                    || c == 21.0
                             })
                             && codes
                                 .iter()

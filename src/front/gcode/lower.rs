@@ -28,11 +28,16 @@ const META_BLOCK_KEYWORDS: &[&str] = &["if", "elif", "else", "while"];
 
 /// The motion mode in force (modal group 1).
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum MotionMode {
+pub(crate) enum MotionMode {
+    /// No motion mode yet (program start, or after a line that was not evaluated).
     None,
+    /// G0.
     Rapid,
+    /// G1.
     Linear,
+    /// G2 (clockwise) or G3.
     Arc {
+        /// G2.
         clockwise: bool,
     },
     /// A mode the IR does not model (canned cycles, splines, threading).
@@ -184,7 +189,7 @@ fn clobbers(g: &[Code], m: &[Code], named: AxisSet) -> AxisSet {
 }
 
 /// Lowers lines, keeping the controller's modal state.
-pub(super) struct Lowerer {
+pub(crate) struct Lowerer {
     pub(super) options: Options,
     motion: MotionMode,
     plane: Plane,
@@ -211,10 +216,41 @@ pub(super) struct Lowerer {
     saw_text: bool,
     /// A block of the main program has been seen.
     program_started: bool,
+    /// Lowering a subprogram body for `expand-subprograms`: calls (M98, simple o-calls)
+    /// are expanded by the caller, so they change no position or feed here.
+    calls_inline: bool,
+}
+
+/// The lowering state a subprogram body starts from and leaves behind: everything a
+/// line's meaning depends on (crate-internal API for the `expand-subprograms` pass).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct LowerState {
+    /// Motion mode in force (G0/G1/G2/G3).
+    pub motion: MotionMode,
+    /// Arc plane.
+    pub plane: Plane,
+    /// G20.
+    pub inch: bool,
+    /// G91.
+    pub relative: bool,
+    /// M83 (E relative; G91 moves E relatively too).
+    pub relative_e: bool,
+    /// G90.1.
+    pub arc_center_absolute: bool,
+    /// G93/G94/G95.
+    pub feed_mode: FeedMode,
+    /// Modal feed, mm/min (or the mode's unit).
+    pub feed: Option<f64>,
+    /// Position, IR frame.
+    pub pos: Joints,
+    /// G92 offsets (program = IR + offset).
+    pub offsets: [f64; AXIS_COUNT],
+    /// Offsets suspended by G92.2.
+    pub suspended: Option<[f64; AXIS_COUNT]>,
 }
 
 impl Lowerer {
-    pub(super) fn new(options: Options) -> Self {
+    pub(crate) fn new(options: Options) -> Self {
         Lowerer {
             options,
             motion: MotionMode::None,
@@ -239,7 +275,49 @@ impl Lowerer {
             items: Vec::with_capacity(32),
             saw_text: false,
             program_started: false,
+            calls_inline: false,
         }
+    }
+
+    /// A lowerer for the lines of a subprogram body, starting in `state`; its calls
+    /// (M98, o-calls without arguments) clobber nothing, as the caller expands them.
+    pub(crate) fn for_body(options: Options, state: LowerState) -> Self {
+        let mut l = Lowerer::new(options);
+        l.calls_inline = true;
+        l.set_state(state);
+        l
+    }
+
+    /// The state the next line is lowered in.
+    pub(crate) fn state(&self) -> LowerState {
+        LowerState {
+            motion: self.motion,
+            plane: self.plane,
+            inch: self.inch,
+            relative: self.relative,
+            relative_e: self.relative_e,
+            arc_center_absolute: self.arc_center_absolute,
+            feed_mode: self.feed_mode,
+            feed: self.feed,
+            pos: self.pos,
+            offsets: self.offsets,
+            suspended: self.suspended,
+        }
+    }
+
+    /// Puts the lowerer into `state` (after an expanded call).
+    pub(crate) fn set_state(&mut self, s: LowerState) {
+        self.motion = s.motion;
+        self.plane = s.plane;
+        self.inch = s.inch;
+        self.relative = s.relative;
+        self.relative_e = s.relative_e;
+        self.arc_center_absolute = s.arc_center_absolute;
+        self.feed_mode = s.feed_mode;
+        self.feed = s.feed;
+        self.pos = s.pos;
+        self.offsets = s.offsets;
+        self.suspended = s.suspended;
     }
 
     /// Whether any non-blank line was read.
@@ -303,6 +381,17 @@ impl Lowerer {
         self.verbatim(text, span, reason, AxisSet::ALL, Placement::Inside)
     }
 
+    /// The modes recorded on a subprogram call: units, distance mode, M83 (alone, not
+    /// G91) and the plane, which the subprogram body starts in.
+    fn call_modes(&self) -> WrittenModes {
+        WrittenModes {
+            inch: self.inch,
+            relative: self.relative,
+            relative_e: self.relative_e,
+            plane: Some(self.plane),
+        }
+    }
+
     fn modes(&self) -> WrittenModes {
         WrittenModes {
             inch: self.inch,
@@ -314,7 +403,7 @@ impl Lowerer {
     }
 
     /// Lowers one line; blocks go to `out`, diagnostics to `diags`.
-    pub(super) fn line(
+    pub(crate) fn line(
         &mut self,
         text: &str,
         span: Span,
@@ -539,13 +628,23 @@ impl Lowerer {
                 ),
             );
         }
-        out.push(self.verbatim(
-            text,
-            span,
-            VerbatimReason::ControlFlow,
-            AxisSet::ALL,
-            placement,
-        ));
+        // A call at the top level records the modes its body starts in. A simple call
+        // (no arguments) inside a body being expanded clobbers nothing: the caller
+        // expands it.
+        let is_call = kw == "call";
+        let inline =
+            is_call && top_level && self.calls_inline && oword_call(text).is_some_and(|c| c.simple);
+        let clob = if inline { AxisSet::EMPTY } else { AxisSet::ALL };
+        let mut block = self.verbatim(text, span, VerbatimReason::ControlFlow, clob, placement);
+        if is_call && top_level {
+            if let BlockKind::Verbatim(v) = &mut block.kind {
+                v.modes = Some(self.call_modes());
+            }
+            if !self.calls_inline {
+                self.feed = None;
+            }
+        }
+        out.push(block);
     }
 
     /// Decides whether a line is outside the plain block grammar; reports why.
@@ -1500,12 +1599,27 @@ impl Lowerer {
             text.push(w.letter);
             text.push_str(w.number());
         }
-        let clob = clobbers(g, m, named);
+        // A Fanuc call: the subprogram may move anything and set its own F. Expanded
+        // inline (a body lowered for `expand-subprograms`), it changes nothing here.
+        let call = m.contains(&(98, 0));
+        let clob = if call && self.calls_inline {
+            AxisSet::EMPTY
+        } else {
+            clobbers(g, m, named)
+        };
         self.pos.forget(clob);
-        let modes = with_axes.then(|| WrittenModes {
-            relative_e: self.relative_e && named.contains(Axis::E),
-            ..self.modes()
-        });
+        if call && !self.calls_inline {
+            self.feed = None;
+        }
+        let modes = if call {
+            // The modes the body starts in (E: M83 alone, not G91).
+            Some(self.call_modes())
+        } else {
+            with_axes.then(|| WrittenModes {
+                relative_e: self.relative_e && named.contains(Axis::E),
+                ..self.modes()
+            })
+        };
         Block::new(
             span,
             BlockKind::Command(Command {
@@ -2013,6 +2127,55 @@ fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<&'a str> {
     toks.iter().skip(1).find_map(|t| match t.1 {
         Tok::Ident(w) if KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(w)) => Some(w),
         _ => None,
+    })
+}
+
+/// An o-word call line (`o100 call`, `o<name> call [1] [2]`), as far as the
+/// `expand-subprograms` pass needs it (crate-internal).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct OwordCall {
+    /// The label, lower case, leading zeros of a number removed (`100`, `<name>`); `None`
+    /// when it is an expression (`o[#2 * 10]`).
+    pub label: Option<String>,
+    /// No arguments and a plain label: the call can be expanded.
+    pub simple: bool,
+    /// Byte range of the label and the keyword in the line, for diagnostics.
+    pub at: (usize, usize),
+}
+
+/// Reads an o-word call line; `None` when the line is not one.
+pub(crate) fn oword_call(text: &str) -> Option<OwordCall> {
+    let toks: Vec<Spanned<'_>> = super::lexer::tokens(text).collect();
+    let kw = oword_keyword(&toks)?;
+    if !kw.eq_ignore_ascii_case("call") {
+        return None;
+    }
+    let kw_at = toks
+        .iter()
+        .position(|t| matches!(t.1, Tok::Ident(w) if w.eq_ignore_ascii_case("call")))?;
+    let raw = text[toks[0].0 + 1..toks[kw_at].0].trim();
+    let label = if let Some(digits) = raw
+        .strip_prefix(['+'])
+        .or(Some(raw))
+        .filter(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+    {
+        Some(digits.trim_start_matches('0').to_string())
+            .map(|d| if d.is_empty() { "0".to_string() } else { d })
+    } else if raw.starts_with('<') && raw.ends_with('>') && !raw.contains(['[', '#']) {
+        Some(raw.to_ascii_lowercase())
+    } else {
+        None
+    };
+    let args = toks[kw_at + 1..].iter().any(|t| {
+        !matches!(
+            t.1,
+            Tok::Comment(_) | Tok::LineComment(_) | Tok::OpenComment(_)
+        )
+    });
+    Some(OwordCall {
+        simple: label.is_some() && !args,
+        label,
+        at: (toks[0].0, toks[kw_at].2),
     })
 }
 

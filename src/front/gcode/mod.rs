@@ -7,6 +7,7 @@
 
 pub mod ast;
 pub use lower::parse_decimal;
+pub(crate) use lower::{LowerState, Lowerer, MotionMode, oword_call};
 pub mod lexer;
 mod lower;
 

@@ -1,0 +1,505 @@
+//! The `expand-subprograms` pass: the seed's `M98 P10 L625` program (625 plunges, positions
+//! and feeds), every LinuxCNC M98/M99 corpus fixture (expanded G-code and diagnostics,
+//! snapshotted), nesting limits, recursion, missing programs and bad counts (diagnostic
+//! snapshots, plain rendering), the state carried into and out of bodies (modes, feed,
+//! G92 offsets, positions), and a property test: a generated program with calls expands to
+//! the same IR as the same program inlined by hand.
+
+use std::path::Path;
+
+use ncpost::back::gcode;
+use ncpost::diag::Diagnostic;
+use ncpost::front::Frontend;
+use ncpost::front::gcode::{Options, Parser};
+use ncpost::ir::{Axis, Block, BlockKind, MotionKind, Target, dump};
+use ncpost::passes::{self, Context, Output};
+use proptest::prelude::*;
+
+/// Frontend, then `expand-subprograms` with `options`: blocks and every diagnostic.
+fn expand_with(src: &str, options: &str) -> (Vec<Block>, Vec<Diagnostic>) {
+    let mut parser = Parser::new(src.as_bytes(), Options::default());
+    let mut diags = Vec::new();
+    let table: toml::Table = toml::from_str(options).unwrap();
+    let mut pass = passes::build("expand-subprograms", &table, &Context::default()).unwrap();
+    let mut blocks = Vec::new();
+    while let Some(b) = parser.next_block(&mut diags) {
+        let mut out = Output::new(&mut blocks, &mut diags);
+        pass.run(b, &mut out);
+    }
+    let mut out = Output::new(&mut blocks, &mut diags);
+    pass.finish(&mut out);
+    (blocks, diags)
+}
+
+fn expand(src: &str) -> (Vec<Block>, Vec<Diagnostic>) {
+    expand_with(src, "")
+}
+
+/// The frontend alone.
+fn lower(src: &str) -> Vec<Block> {
+    let mut parser = Parser::new(src.as_bytes(), Options::default());
+    let mut diags = Vec::new();
+    let mut blocks = Vec::new();
+    while let Some(b) = parser.next_block(&mut diags) {
+        blocks.push(b);
+    }
+    blocks
+}
+
+fn errors(diags: &[Diagnostic]) -> Vec<&Diagnostic> {
+    diags.iter().filter(|d| d.is_error()).collect()
+}
+
+fn render_all(file: &str, diags: &[Diagnostic]) -> String {
+    diags
+        .iter()
+        .map(|d| d.render(file, false))
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+fn fixture(name: &str) -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/subprograms")
+        .join(name);
+    std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn motions(blocks: &[Block]) -> Vec<(&ncpost::ir::Motion, &ncpost::ir::Joints)> {
+    blocks
+        .iter()
+        .filter_map(|b| match &b.kind {
+            BlockKind::Motion(m) => match &m.target {
+                Target::Joints(j) => Some((m, j)),
+                Target::Pose(_) => None,
+            },
+            _ => None,
+        })
+        .collect()
+}
+
+fn is_call_or_body(b: &Block) -> bool {
+    match &b.kind {
+        BlockKind::Command(c) => c.text.contains("M98") || c.text.contains("M99"),
+        BlockKind::Verbatim(v) => v.reason == ncpost::ir::VerbatimReason::Subprogram,
+        _ => false,
+    }
+}
+
+/// Whether a block's text or comments contain `needle`.
+fn mentions(b: &Block, needle: &str) -> bool {
+    b.comments.iter().any(|c| c.text.contains(needle))
+        || matches!(&b.kind, BlockKind::Verbatim(v) if v.text.contains(needle))
+}
+
+#[test]
+fn seed_program_expands_to_625_plunges() {
+    let (blocks, diags) = expand(&fixture("seed_001_z_check.ngc"));
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    assert!(
+        !blocks.iter().any(is_call_or_body),
+        "a call or body is left"
+    );
+    let moves = motions(&blocks);
+    // G00 Z1, then 625 x (G00 Z0.1, G01 Z0.04 F20, G00 Z1), then G00 Z0.
+    assert_eq!(moves.len(), 1 + 625 * 3 + 1);
+    let plunges: Vec<_> = moves
+        .iter()
+        .filter(|(m, _)| matches!(m.kind, MotionKind::Linear))
+        .collect();
+    assert_eq!(plunges.len(), 625, "one G01 plunge per repetition");
+    for (m, j) in &plunges {
+        assert_eq!(j.get(Axis::Z), Some(0.04));
+        assert_eq!(m.feed.rate, Some(20.0));
+        // G92 X0 Y0 Z0 made X and Y known; the body keeps them.
+        assert_eq!((j.get(Axis::X), j.get(Axis::Y)), (Some(0.0), Some(0.0)));
+    }
+    for (k, (m, j)) in moves[1..moves.len() - 1].iter().enumerate() {
+        let z = [0.1, 0.04, 1.0][k % 3];
+        assert_eq!(j.get(Axis::Z), Some(z), "move {k}");
+        assert_eq!(matches!(m.kind, MotionKind::Rapid), k % 3 != 1);
+    }
+    // After the call the frontend knew nothing; the pass restored X, Y (and E) and the
+    // feed the body left in force.
+    let (last_m, last) = moves[moves.len() - 1];
+    assert_eq!(last.get(Axis::Z), Some(0.0));
+    assert_eq!(
+        (last.get(Axis::X), last.get(Axis::Y)),
+        (Some(0.0), Some(0.0))
+    );
+    assert_eq!(last_m.feed.rate, Some(20.0));
+    // Spans: body blocks point at the body's lines (9-11 of the fixture).
+    assert_eq!(plunges[0].0.kind, MotionKind::Linear);
+    let lines: Vec<u32> = blocks
+        .iter()
+        .filter(|b| matches!(b.kind, BlockKind::Motion(_)))
+        .map(|b| b.span.line)
+        .collect();
+    assert_eq!(&lines[..4], &[4, 9, 10, 11]);
+    assert_eq!(lines[lines.len() - 1], 6);
+    // The plain output runs no subprogram and plunges 625 times.
+    let text = gcode::write_string(&blocks, &gcode::Options::default()).unwrap();
+    assert!(
+        !text
+            .lines()
+            .any(|l| l.starts_with("M98") || l.starts_with("M99") || l.starts_with('O')),
+        "{text}"
+    );
+    assert_eq!(
+        text.lines().filter(|l| l.starts_with("G1 Z0.04")).count(),
+        625
+    );
+    assert_eq!(text.matches("F20").count(), 1, "F is modal");
+}
+
+/// Every LinuxCNC M98/M99 corpus file: the expanded G-code (plain backend) and every
+/// diagnostic, one snapshot per fixture.
+#[test]
+fn corpus_fixtures() {
+    for name in [
+        "linuxcnc_m98m99_01_basics.ngc",
+        "linuxcnc_m98m99_02_variables.ngc",
+        "linuxcnc_m98m99_05_loops.ngc",
+        "linuxcnc_m98m99_07_nested.ngc",
+        "linuxcnc_m98m99_10_P0002.ngc",
+        "linuxcnc_m98m99_12_endless_main.ngc",
+        "linuxcnc_m98m99_14_o_expression_call.ngc",
+        "linuxcnc_interp_test_sub.ngc",
+        "seed_001_z_check.ngc",
+    ] {
+        let src = fixture(name);
+        let (blocks, diags) = expand(&src);
+        let mut out = Vec::new();
+        let back = ncpost::back::write_blocks(
+            &mut gcode::Writer::new(&mut out, &gcode::Options::default()),
+            &blocks,
+        );
+        let mut text = String::from_utf8(out).unwrap();
+        if name.starts_with("seed") {
+            // 625 repetitions: the first and the last are enough to read.
+            let lines: Vec<&str> = text.lines().collect();
+            text = format!(
+                "{}\n... ({} lines)\n{}\n",
+                lines[..8].join("\n"),
+                lines.len(),
+                lines[lines.len() - 4..].join("\n")
+            );
+        }
+        let snap = format!(
+            "---- output ----\n{text}---- diagnostics ----\n{}{}",
+            render_all(name, &diags),
+            render_all(name, &back)
+        );
+        insta::assert_snapshot!(name.trim_end_matches(".ngc"), snap);
+    }
+}
+
+#[test]
+fn basics_numbers() {
+    // 01: three times `G91 G0 X1` from X0, then a canned cycle the IR does not model.
+    let (blocks, diags) = expand(&fixture("linuxcnc_m98m99_01_basics.ngc"));
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    let xs: Vec<f64> = motions(&blocks)
+        .iter()
+        .filter_map(|(_, j)| j.get(Axis::X))
+        .collect();
+    // The file has no G20, so X1 is 1 mm. The first repetition starts at the known X0;
+    // the canned cycle (not modelled) leaves every position unknown, so the next two
+    // relative moves pass through as written.
+    assert_eq!(xs, vec![0.0, 1.0]);
+    let verbatim = |needle: &str| {
+        blocks
+            .iter()
+            .filter(|b| matches!(&b.kind, BlockKind::Verbatim(v) if v.text.contains(needle)))
+            .count()
+    };
+    assert_eq!(verbatim("G81"), 3);
+    assert_eq!(verbatim("G91 G0 X1"), 2);
+}
+
+#[test]
+fn nested_calls_multiply() {
+    // 07: O2 five times, each calling O1 five times: 25 runs of O1's (PRINT) line.
+    let (blocks, diags) = expand(&fixture("linuxcnc_m98m99_07_nested.ngc"));
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    let prints = |needle: &str| blocks.iter().filter(|b| mentions(b, needle)).count();
+    assert_eq!(prints(">>>> LOOP"), 25);
+    assert_eq!(prints("O2 END"), 5);
+    assert!(!blocks.iter().any(is_call_or_body));
+}
+
+/// A chain O1 -> O2 -> ... -> O`levels`, each body one move.
+fn chain(levels: u32) -> String {
+    let mut s = String::from("G0 X0 Y0 Z0\nM98 P1\nG0 Z5\nM30\n");
+    for n in 1..=levels {
+        s.push_str(&format!("O{n}\nG1 X{n} F100\n"));
+        if n < levels {
+            s.push_str(&format!("M98 P{}\n", n + 1));
+        }
+        s.push_str("M99\n");
+    }
+    s
+}
+
+#[test]
+fn ten_levels_expand_eleven_do_not() {
+    let (blocks, diags) = expand(&chain(10));
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    let xs: Vec<f64> = motions(&blocks)
+        .iter()
+        .filter(|(m, _)| matches!(m.kind, MotionKind::Linear))
+        .map(|(_, j)| j.get(Axis::X).unwrap())
+        .collect();
+    assert_eq!(xs, (1..=10).map(f64::from).collect::<Vec<_>>());
+
+    let src = chain(11);
+    let (_, diags) = expand(&src);
+    let errs = errors(&diags);
+    assert_eq!(errs.len(), 1, "{diags:?}");
+    assert_eq!(errs[0].code, "subprograms::depth");
+    // Points at the innermost call, `M98 P11` in O10's body.
+    let loc = errs[0].location.as_ref().unwrap();
+    let line = src.lines().nth(loc.line as usize - 1).unwrap();
+    assert_eq!(line, "M98 P11");
+    assert_eq!(loc.column, 1);
+    insta::assert_snapshot!("depth_eleven", render_all("chain11.ngc", &diags));
+}
+
+#[test]
+fn error_snapshots() {
+    let cases = [
+        (
+            "recursion",
+            "G0 X0\nM98 P1\nM30\nO1\nG1 X1 F10\nM98 P2\nM99\nO2\nM98 P1 L2\nM99\n",
+            "subprograms::recursion",
+            (9, 1),
+        ),
+        (
+            "missing",
+            "G0 X0\nM98 P7 L2\nM30\nO1\nG1 X1 F10\nM99\n",
+            "subprograms::missing",
+            (2, 1),
+        ),
+        (
+            "count_zero",
+            "M98 P1 L0\nM30\nO1\nG0 X1\nM99\n",
+            "subprograms::count",
+            (1, 8),
+        ),
+        (
+            "count_fraction",
+            "M98 P1 L2.5\nM30\nO1\nG0 X1\nM99\n",
+            "subprograms::count",
+            (1, 8),
+        ),
+        (
+            "count_negative",
+            "M98 P1 L-3\nM30\nO1\nG0 X1\nM99\n",
+            "subprograms::count",
+            (1, 8),
+        ),
+        (
+            "count_huge",
+            "M98 P1 L100000\nM30\nO1\nG0 X1\nM99\n",
+            "subprograms::count",
+            (1, 8),
+        ),
+        (
+            "missing_packed_hint",
+            "G0 X0\nM98 P30010\nM30\nO10\nG0 X1\nM99\n",
+            "subprograms::missing",
+            (2, 1),
+        ),
+        (
+            "modes_left_g91",
+            "G0 X0\nM98 P1\nG0 X5\nM30\nO1\nG91 G0 X1\nM99\n",
+            "subprograms::modes",
+            (2, 1),
+        ),
+        (
+            "no_m99",
+            "G0 X0\nM98 P1\nM30\nO1\nG0 X1\n",
+            "subprograms::no-m99",
+            (4, 1),
+        ),
+        (
+            "oword_missing",
+            "o7 call\nM2\n",
+            "subprograms::missing",
+            (1, 1),
+        ),
+    ];
+    for (name, src, code, (line, column)) in cases {
+        let (_, diags) = expand(src);
+        let errs = errors(&diags);
+        assert_eq!(errs.len(), 1, "{name}: {diags:?}");
+        assert_eq!(errs[0].code, code, "{name}");
+        let loc = errs[0].location.as_ref().unwrap();
+        assert_eq!((loc.line, loc.column), (line, column), "{name}");
+        insta::assert_snapshot!(name, render_all(&format!("{name}.ngc"), &diags));
+    }
+}
+
+#[test]
+fn packed_count_option() {
+    let src = "G0 X0\nM98 P30010\nM30\nO10\nG91 G1 X1 F50\nG90\nM99\n";
+    let (blocks, diags) = expand_with(src, "packed_count = true");
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    let xs: Vec<f64> = motions(&blocks)
+        .iter()
+        .map(|(_, j)| j.get(Axis::X).unwrap())
+        .collect();
+    assert_eq!(xs, vec![0.0, 1.0, 2.0, 3.0]);
+}
+
+#[test]
+fn program_numbers_are_numbers() {
+    // 10: P0002 calls the first definition of number 2; the second is a warning.
+    let (blocks, diags) = expand(&fixture("linuxcnc_m98m99_10_P0002.ngc"));
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    assert!(diags.iter().any(|d| d.code == "subprograms::duplicate"));
+    assert_eq!(blocks.iter().filter(|b| mentions(b, "got here")).count(), 1);
+    assert!(!blocks.iter().any(|b| mentions(b, "should not get here")));
+}
+
+#[test]
+fn calls_that_cannot_be_expanded_keep_their_definitions() {
+    // 14: `O[#2 * 10] call` and `M98 P[expr]`: both pass through, with the subprograms.
+    let (blocks, diags) = expand(&fixture("linuxcnc_m98m99_14_o_expression_call.ngc"));
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    assert_eq!(
+        diags
+            .iter()
+            .filter(|d| d.code == "subprograms::not-expanded")
+            .count(),
+        2
+    );
+    let text = gcode::write_string(&blocks, &gcode::Options::default()).unwrap();
+    assert!(text.contains("O100 sub") && text.contains("O200"), "{text}");
+    // interp_test_sub: calls with arguments; the subroutines stay before them.
+    let (blocks, diags) = expand(&fixture("linuxcnc_interp_test_sub.ngc"));
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    let text = gcode::write_string(&blocks, &gcode::Options::default()).unwrap();
+    let sub = text.find("o100 sub").unwrap();
+    let call = text.find("o100 call").unwrap();
+    assert!(sub < call, "{text}");
+}
+
+#[test]
+fn oword_subroutine_expands_in_the_callers_modes() {
+    // G20 G91 in force at the calls: the body's X10 is 10 inches, relative, twice; the
+    // relative G1 Y1 after the calls (unknown to the frontend) is lowered again here.
+    let src = "o<zig> sub\nG1 X10 F3\no<zig> endsub\nG20\nG0 X0 Y0\nG91\no<zig> call\no<zig> call\nG1 Y1\nG90\nM2\n";
+    let (blocks, diags) = expand(src);
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    let moves = motions(&blocks);
+    let xs: Vec<f64> = moves.iter().map(|(_, j)| j.get(Axis::X).unwrap()).collect();
+    assert_eq!(xs, vec![0.0, 254.0, 508.0, 508.0]);
+    // Feed: F3 in/min from the body is in force after the call.
+    assert_eq!(moves[3].0.feed.rate, Some(3.0 * 25.4));
+    assert_eq!(moves[3].1.get(Axis::Y), Some(25.4));
+}
+
+#[test]
+fn g92_inside_a_body_shifts_the_lines_after_the_call() {
+    // The body declares X=0 at X=10; the main program's X5 after the call is then X15
+    // in the frame the machine moves in.
+    let src = "G0 X10 Y0\nM98 P1\nG0 X5\nG0 Y1\nM30\nO1\nG92 X0\nM99\n";
+    let (blocks, diags) = expand(src);
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    let moves = motions(&blocks);
+    let last = moves.last().unwrap().1;
+    assert_eq!(last.get(Axis::X), Some(15.0));
+    assert_eq!(moves[1].1.get(Axis::X), Some(15.0));
+    let text = gcode::write_string(&blocks, &gcode::Options::default()).unwrap();
+    assert!(text.contains("G92 X0\nG0 X5\n"), "{text}");
+}
+
+#[test]
+fn main_m99_is_a_warning_and_passes_through() {
+    let (blocks, diags) = expand(&fixture("linuxcnc_m98m99_12_endless_main.ngc"));
+    assert!(errors(&diags).is_empty(), "{diags:?}");
+    assert!(diags.iter().any(|d| d.code == "subprograms::main-m99"));
+    // The call to O100 is expanded (its G1 Y-4), the main M99 stays.
+    assert!(
+        motions(&blocks)
+            .iter()
+            .any(|(_, j)| j.get(Axis::Y) == Some(-4.0))
+    );
+    assert!(
+        blocks
+            .iter()
+            .any(|b| matches!(&b.kind, BlockKind::Command(c) if c.text == "M99"))
+    );
+}
+
+#[test]
+fn programs_without_calls_are_unchanged() {
+    let src = "G21 G90\nG0 X1 Y2\nG1 Z-1 F100\nG2 X3 Y2 I1 J0\nM30\n";
+    let (blocks, diags) = expand(src);
+    assert!(diags.is_empty(), "{diags:?}");
+    assert_eq!(blocks, lower(src));
+}
+
+fn dump_all(blocks: &[Block]) -> Vec<String> {
+    blocks
+        .iter()
+        .map(|b| {
+            let mut s = String::new();
+            dump::write_block(&mut s, b);
+            // Spans differ (body lines vs inlined lines): compare from the colon on.
+            s.split_once(": ").map(|x| x.1.to_string()).unwrap_or(s)
+        })
+        .collect()
+}
+
+/// A generated body line: absolute or relative moves, feeds, units and G92.
+fn body_line() -> impl Strategy<Value = String> {
+    prop_oneof![
+        (-50i32..50, -50i32..50).prop_map(|(x, y)| format!("G0 X{x} Y{y}")),
+        (-50i32..50, 1u32..500).prop_map(|(z, f)| format!("G1 Z{} F{f}", z as f64 / 10.0)),
+        (-9i32..9).prop_map(|x| format!("G91 G1 X{x}\nG90")),
+        (-9i32..9).prop_map(|y| format!("G1 Y{y}")),
+        (1i32..9).prop_map(|x| format!("G20 G0 X{x}\nG21")),
+        Just("G92 X0".to_string()),
+        Just("G92.1".to_string()),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(48))]
+    /// A main program calling two subprograms (one also calling the other), with repeat
+    /// counts, gives the same IR as the program with every call written out.
+    #[test]
+    fn expansion_equals_hand_inlining(
+        main in prop::collection::vec(body_line(), 0..4),
+        tail in prop::collection::vec(body_line(), 0..3),
+        o1 in prop::collection::vec(body_line(), 1..4),
+        o2 in prop::collection::vec(body_line(), 1..3),
+        l1 in 1u32..4,
+        l2 in 1u32..3,
+    ) {
+        let start = "G0 X1 Y2 Z3\n";
+        let o1_text = o1.join("\n");
+        let o2_text = o2.join("\n");
+        let with_calls = format!(
+            "{start}{}\nM98 P1 L{l1}\n{}\nM30\nO1\n{o1_text}\nM98 P2 L{l2}\nM99\nO2\n{o2_text}\nM99\n",
+            main.join("\n"),
+            tail.join("\n"),
+        );
+        let mut inlined = format!("{start}{}\n", main.join("\n"));
+        for _ in 0..l1 {
+            inlined.push_str(&o1_text);
+            inlined.push('\n');
+            for _ in 0..l2 {
+                inlined.push_str(&o2_text);
+                inlined.push('\n');
+            }
+        }
+        inlined.push_str(&format!("{}\nM30\n", tail.join("\n")));
+        let (expanded, diags) = expand(&with_calls);
+        prop_assert!(errors(&diags).is_empty(), "{:?}", diags);
+        let by_hand = lower(&inlined);
+        prop_assert_eq!(dump_all(&expanded), dump_all(&by_hand), "{}", with_calls);
+    }
+}
