@@ -429,6 +429,8 @@ fn e_total_is_exact_over_the_real_layer_output_text() {
         "center".into(),
         toml::Value::try_from([100.0, 90.0]).expect("toml"),
     );
+    // E as an axis: without extrude-rate, which turns E into screw speeds.
+    preset.passes.retain(|p| p.name != "extrude-rate");
     let out = ncpost::pipeline::compile_str(LAYER, &preset).expect("compiles");
     let e_sum = |text: &str| -> f64 {
         text.lines()
@@ -550,7 +552,14 @@ fn preset_loads_and_runs_end_to_end() {
     assert_eq!(p.origin_policy(), OriginPolicy::RotateInPlace);
     assert_eq!(p.valve.open_command, "M42 P0 S1");
     let names: Vec<&str> = preset.passes.iter().map(|s| s.name.as_str()).collect();
-    assert_eq!(names, ["polar-ik", "verify"]);
+    // The final order is polar-ik, valve-lookahead, extrude-rate, verify.
+    let order: Vec<&str> = ["polar-ik", "valve-lookahead", "extrude-rate", "verify"]
+        .into_iter()
+        .filter(|n| names.contains(n))
+        .collect();
+    assert_eq!(names, order);
+    assert_eq!(names.first(), Some(&"polar-ik"));
+    assert!(names.contains(&"extrude-rate"));
     let text = include_str!("../passes/polar-printer.toml");
     assert!(text.matches("# assumption:").count() >= 5);
 

@@ -6,6 +6,7 @@
 
 pub mod densify;
 pub mod expand_subprograms;
+pub mod extrude_rate;
 pub mod feed;
 pub mod heightmap;
 pub mod ik;
@@ -110,6 +111,7 @@ pub const REGISTRY: &[PassInfo] = &[
     feed::INFO,
     limits::INFO,
     polar_ik::INFO,
+    extrude_rate::INFO,
     linearize_arcs::INFO,
     normalize::INFO,
     heightmap::INFO,
