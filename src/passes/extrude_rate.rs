@@ -552,7 +552,16 @@ impl ExtrudeRate {
             _ => rate / 60.0,
         };
         if (seg.v_max - wanted).abs() > 1e-9 * wanted.max(1.0) {
+            // The controller's min_speed or an axis' max_feed wins: print the feed it
+            // will really run at.
             limited = true;
+            let real = match mode {
+                FeedMode::InverseTime => seg.v_max / seg.length * 60.0,
+                _ => seg.v_max * 60.0,
+            };
+            m.feed.rate = Some(self.printed_feed(real));
+            probe.feed = m.feed;
+            return Some((self.model.motion(from, &probe)?, limited));
         }
         Some((seg, limited))
     }
