@@ -1,6 +1,5 @@
 //! The `extrude-rate` pass: material per block and per file from the printed output under the motion-time model (exact vs seed rule, both timings), the threshold, retraction/prime handling, e-axis conservation, constant-flow feeds, snapshots and the screw curve of `plot --speed`.
 
-use ncpost::back::Backend;
 use ncpost::diag::{Diagnostic, Severity};
 use ncpost::front::gcode::{Options as GcodeOptions, parse_str};
 use ncpost::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
@@ -32,7 +31,31 @@ fn preset(center: [f64; 2], options: &[(&str, toml::Value)]) -> Preset {
     p
 }
 
+/// Compiles `src` (memoised: several tests compile the cube with the same preset).
 fn compile(src: &str, preset: &Preset, timing: Option<Timing>) -> (String, Vec<Diagnostic>) {
+    use std::collections::HashMap;
+    use std::sync::{Mutex, OnceLock};
+    type Cache = Mutex<HashMap<String, (String, Vec<Diagnostic>)>>;
+    static CACHE: OnceLock<Cache> = OnceLock::new();
+    let key = format!(
+        "{timing:?}\n{}\n{}",
+        toml::to_string(preset).expect("preset toml"),
+        src
+    );
+    let cache = CACHE.get_or_init(Default::default);
+    if let Some(hit) = cache.lock().expect("cache").get(&key) {
+        return hit.clone();
+    }
+    let result = compile_uncached(src, preset, timing);
+    cache.lock().expect("cache").insert(key, result.clone());
+    result
+}
+
+fn compile_uncached(
+    src: &str,
+    preset: &Preset,
+    timing: Option<Timing>,
+) -> (String, Vec<Diagnostic>) {
     let mut b = Pipeline::builder().preset(preset.clone());
     if let Some(t) = timing {
         b = b.timing(t);
@@ -78,7 +101,7 @@ fn timed_output(text: &str, polar: &Polar, timing: Timing) -> Vec<Piece> {
     let mut pos = Joints::default();
     let mut rpm = 0.0;
     let mut pieces = Vec::new();
-    let mut drain = |planner: &mut Planner<_>, pieces: &mut Vec<Piece>| {
+    let drain = |planner: &mut Planner<_>, pieces: &mut Vec<Piece>| {
         while let Some(t) = planner.pop() {
             if let Some((end, rpm)) = t.payload {
                 pieces.push(Piece {
@@ -763,4 +786,182 @@ fn constant_flow_keeps_the_material_and_the_screw_steady_on_a_real_file() {
     );
     assert!(at_rpm > 400);
     assert!(changes(&flow) * 10 < changes(&rpm));
+}
+
+#[test]
+fn max_rpm_warns_or_slows_the_feed() {
+    let src = "M83\nG1 X0 Y0 F600\nG1 X10 E1\nG1 X20 E0.25\n";
+    // 1 E in 1 s is 60 rpm, above max_rpm 30.
+    let (out, diags) = alone("e_per_rev = 1.0\nmax_rpm = 30.0", src);
+    assert_eq!(
+        lines(&out),
+        [
+            "G1 X0 Y0 F600",
+            "M3 S60",
+            "G1 X10",
+            "M3 S15",
+            "G1 X20",
+            "M3 S0"
+        ]
+    );
+    let warn: Vec<_> = diags
+        .iter()
+        .filter(|d| d.code == "extrude-rate::max-rpm")
+        .collect();
+    assert_eq!(warn.len(), 1);
+    assert_eq!(warn[0].location.as_ref().map(|l| l.line), Some(3));
+    // slow-feed: the block takes 2 s (F300) and the screw turns at 30 rpm; the next
+    // block keeps its own feed.
+    let (out, diags) = alone(
+        "e_per_rev = 1.0\nmax_rpm = 30.0\nlimit = \"slow-feed\"",
+        src,
+    );
+    assert_eq!(
+        lines(&out),
+        [
+            "G1 X0 Y0 F600",
+            "M3 S30",
+            "G1 X10 F300",
+            "M3 S15",
+            "G1 X20 F600",
+            "M3 S0"
+        ]
+    );
+    assert!(diags.iter().any(|d| d.code == "extrude-rate::slowed"));
+    assert!(
+        diags.iter().all(|d| d.code != "extrude-rate::max-rpm"),
+        "{diags:?}"
+    );
+}
+
+#[test]
+fn seed_rule_is_exact_for_a_turn_about_the_centre() {
+    // A circle of radius 20 about the table centre at 10 mm/s with 0.1 E/mm: 1 E/s,
+    // 60 rpm. The default gamma calibrates the seed rule on exactly this motion.
+    let src = "M83\nG0 X20 Y0 Z0.2\nG2 X20 Y0 I-20 J0 E12.56637 F600\n";
+    for rule in ["exact", "seed"] {
+        let (out, _) = compile(src, &preset([0.0, 0.0], &[("rule", rule.into())]), None);
+        let rates: Vec<f64> = out
+            .lines()
+            .filter_map(rpm_of)
+            .filter(|r| *r > 0.0)
+            .collect();
+        assert!(!rates.is_empty());
+        for r in rates {
+            assert!((r - 60.0).abs() < 0.6, "{rule}: {r} rpm");
+        }
+    }
+}
+
+#[test]
+fn bad_options_are_errors() {
+    let polar = polar_machine();
+    let ctx = Context {
+        polar: Some(&polar),
+        ..Context::default()
+    };
+    for bad in [
+        "bogus = 1",
+        "mode = \"pump\"",
+        "rule = \"guess\"",
+        "threshold = -0.1",
+        "threshold = 1.0",
+        "e_per_rev = 0.0",
+        "max_rpm = -5.0",
+        "rpm = 0.0",
+        "gamma = -1.0",
+        "command = \"M3 S100\"",
+        "stop_command = \"\"",
+        "rpm_decimals = 9",
+        "limit = \"ignore\"",
+        "timing = \"instant\"",
+    ] {
+        let t: toml::Table = toml::from_str(bad).expect("toml");
+        assert!(passes::build("extrude-rate", &t, &ctx).is_err(), "{bad}");
+    }
+    let t: toml::Table = toml::from_str("frame = \"polar\"").expect("toml");
+    assert!(passes::build("extrude-rate", &t, &Context::default()).is_err());
+    assert!(passes::build("extrude-rate", &toml::Table::new(), &Context::default()).is_ok());
+}
+
+/// A small print near the table centre: a line past the centre, a retraction, travel,
+/// an unretraction with a prime, a Z move, absolute E with G92.
+const SMALL: &str = "; hand-written for tests/extrude_rate.rs\n\
+G21 G90\n\
+M82\n\
+G92 E0\n\
+G0 X-6 Y1 Z0.2\n\
+G1 X6 Y1 E0.6 F1200\n\
+G1 X6 Y6 E0.85\n\
+G1 E0.05 F2400\n\
+G0 X-6 Y6\n\
+G1 E0.9 F2400\n\
+G1 X-6 Y-6 E1.5 F600\n\
+G92 E0\n\
+G1 Z0.4 F600\n\
+G1 X6 Y-6 E0.6 F1800\n";
+
+#[test]
+fn snapshots_before_and_after() {
+    for (name, options) in [
+        ("screw_rpm", vec![]),
+        ("seed_rule", vec![("rule", toml::Value::from("seed"))]),
+        (
+            "constant_flow",
+            vec![("mode", "constant-flow".into()), ("rpm", 30.0.into())],
+        ),
+    ] {
+        let (out, diags) = compile(SMALL, &preset([0.0, 0.0], &options), None);
+        let warnings: Vec<String> = diags
+            .iter()
+            .filter(|d| d.severity == Severity::Warning)
+            .map(|d| {
+                format!(
+                    "{} (line {:?})",
+                    d.message,
+                    d.location.as_ref().map(|l| l.line)
+                )
+            })
+            .collect();
+        insta::assert_snapshot!(
+            name,
+            format!(
+                "before:\n{SMALL}\nafter:\n{out}\nwarnings:\n{}\n",
+                warnings.join("\n")
+            )
+        );
+    }
+}
+
+#[test]
+fn plot_speed_draws_the_screw_rate() {
+    use ncpost::plot::SpeedPlot;
+    let svg = |p: &Preset| {
+        let mut pipeline = Pipeline::builder()
+            .preset(p.clone())
+            .build()
+            .expect("pipeline");
+        let mut plot = SpeedPlot::for_preset(pipeline.preset(), None, 3000.0);
+        let summary = pipeline.run_into(
+            ncpost::pipeline::Source::Gcode,
+            SMALL.as_bytes(),
+            &mut plot,
+            &mut |_| {},
+        );
+        assert_eq!(summary.errors, 0);
+        let rpm: Vec<f64> = plot.samples().iter().map(|s| s.rpm).collect();
+        (plot.svg(), rpm)
+    };
+    let with = preset([0.0, 0.0], &[]);
+    let (text, rpm) = svg(&with);
+    assert!(text.contains("screw (rpm)"), "no screw series");
+    // The curve holds the rates the program sets: 0 on travel, up to the fastest command.
+    let (out, _) = compile(SMALL, &with, None);
+    let top = out.lines().filter_map(rpm_of).fold(0.0, f64::max);
+    assert!(top > 0.0);
+    assert!(rpm.iter().any(|r| (*r - top).abs() < 1e-9));
+    assert!(rpm.contains(&0.0));
+    let mut without = with.clone();
+    without.passes.retain(|p| p.name != "extrude-rate");
+    assert!(!svg(&without).0.contains("screw (rpm)"));
 }

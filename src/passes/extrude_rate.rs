@@ -96,7 +96,6 @@ use crate::ir::{
     MotionKind, Span, Target,
 };
 use crate::machine::FeedRule;
-use crate::machine::polar::Screw;
 use crate::motion::{self, Model, Planner, Segment, Timed, Timing};
 
 /// What the pass produces.
@@ -297,10 +296,7 @@ impl ExtrudeRate {
     /// The pass with `options` in `ctx` (screw settings from `[polar.screw]`, timing from
     /// the controller).
     pub fn new(options: Options, ctx: &Context<'_>) -> Result<ExtrudeRate, String> {
-        let screw = ctx
-            .polar
-            .map(|p| p.screw.clone())
-            .unwrap_or_else(Screw::default);
+        let screw = ctx.polar.map(|p| p.screw.clone()).unwrap_or_default();
         let e_per_rev = options.e_per_rev.unwrap_or(screw.e_per_rev);
         let max_rpm = options.max_rpm.unwrap_or(screw.max_rpm);
         let positive = |v: f64, what: &str| {
@@ -410,6 +406,19 @@ impl ExtrudeRate {
         }
     }
 
+    /// The largest printable feed not above `f` (a slowed block must not come out
+    /// faster than `max_rpm` allows by rounding).
+    fn printed_feed_down(&self, f: f64) -> f64 {
+        match self.decimals {
+            Some(d) => {
+                let scale = 10f64.powi(d.feed as i32);
+                let down = (f * scale).floor() / scale;
+                if down > 0.0 { down } else { f }
+            }
+            None => f,
+        }
+    }
+
     fn printed_rpm(&self, rpm: f64) -> f64 {
         let d = self.options.rpm_decimals;
         to_units(rpm, d).map_or(rpm, |u| u as f64 / 10f64.powi(d as i32))
@@ -454,7 +463,7 @@ impl ExtrudeRate {
     fn set_rate(&mut self, rpm: f64, span: Span, out: &mut Output<'_>) {
         let rpm = self.printed_rpm(rpm.max(0.0));
         let keep = match self.held {
-            Some(h) if h == 0.0 => rpm == 0.0,
+            Some(0.0) => rpm == 0.0,
             Some(h) => rpm > 0.0 && (rpm - h).abs() <= self.options.threshold * h,
             None => false,
         };
@@ -474,7 +483,7 @@ impl ExtrudeRate {
 
     fn check_rpm(&mut self, rpm: f64, span: Span, out: &mut Output<'_>) {
         let max = self.max_rpm;
-        if rpm > max * (1.0 + 1e-9) {
+        if rpm > max * (1.0 + 1e-6) {
             self.over_max.hit(out, || {
                 Diagnostic::warning(
                     "extrude-rate::max-rpm",
@@ -539,7 +548,11 @@ impl ExtrudeRate {
             }
             _ => (FeedMode::PerMinute, seg.length / seconds * 60.0),
         };
-        let rate = self.printed_feed(rate);
+        let rate = if self.options.mode == Mode::ConstantFlow {
+            self.printed_feed(rate)
+        } else {
+            self.printed_feed_down(rate)
+        };
         if rate <= 0.0 {
             return None;
         }
@@ -650,7 +663,7 @@ impl ExtrudeRate {
                             seconds = material / self.e_per_rev / self.max_rpm * 60.0;
                         }
                         // Whole milliseconds (the dwell's printed precision), never shorter.
-                        let seconds = ((seconds * 1000.0).ceil() / 1000.0).max(0.001);
+                        let seconds = ((seconds * 1000.0 - 1e-6).ceil() / 1000.0).max(0.001);
                         let mut b = Block::new(block.span, BlockKind::Dwell { seconds });
                         b.comments = comments;
                         b.comments.push(Comment {
@@ -717,7 +730,7 @@ impl ExtrudeRate {
                         && cv_seconds > 0.0
                         && material / self.e_per_rev / (cv_seconds / 60.0) > self.max_rpm =>
                     {
-                        Some(material / self.e_per_rev / self.max_rpm * 60.0 * (1.0 + 1e-6))
+                        Some(material / self.e_per_rev / self.max_rpm * 60.0)
                     }
                     _ => None,
                 };
