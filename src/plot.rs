@@ -313,6 +313,10 @@ pub struct SpeedPlot {
     axes: AxisSet,
     /// Points sampled inside each phase of a polar move.
     per_phase: usize,
+    /// Screw speed templates besides `M3`/`M4`/`M5`: the text before and after `{rpm}`.
+    screw_templates: Vec<(String, String)>,
+    /// Commands that stop the screw besides `M5`.
+    stop_commands: Vec<String>,
 }
 
 impl SpeedPlot {
@@ -329,7 +333,50 @@ impl SpeedPlot {
             seen: 0,
             axes: AxisSet::EMPTY,
             per_phase: 16,
+            screw_templates: Vec::new(),
+            stop_commands: Vec::new(),
         }
+    }
+
+    /// Also reads screw speeds from commands written with `template` (`{rpm}` marks the
+    /// number, as in the `extrude-rate` pass's `command`), and `stop` as a screw stop.
+    ///
+    /// ```
+    /// use ncpost::back::Backend;
+    /// use ncpost::front::gcode::{parse_str, Options};
+    /// use ncpost::plot::SpeedPlot;
+    /// let p = parse_str("M106 P2 S40\nG1 X10 F600\nM107 P2\n", &Options::default()).unwrap();
+    /// let mut plot = SpeedPlot::new(Default::default(), None)
+    ///     .with_screw_command("M106 P2 S{rpm}", Some("M107 P2"));
+    /// for b in &p.blocks {
+    ///     plot.write_block(b, &mut Vec::new()).unwrap();
+    /// }
+    /// plot.finish().unwrap();
+    /// assert!(plot.samples().iter().any(|s| s.rpm == 40.0));
+    /// assert!(plot.svg().contains("screw (rpm)"));
+    /// ```
+    pub fn with_screw_command(mut self, template: &str, stop: Option<&str>) -> Self {
+        if let Some((before, after)) = template.split_once("{rpm}") {
+            self.screw_templates
+                .push((before.trim().to_string(), after.trim().to_string()));
+        }
+        if let Some(stop) = stop.filter(|s| !s.trim().is_empty()) {
+            self.stop_commands.push(stop.trim().to_string());
+        }
+        self
+    }
+
+    /// The screw speed `text` sets under the configured templates, if any.
+    fn template_rpm(&self, text: &str) -> Option<f64> {
+        let text = text.trim();
+        if self.stop_commands.iter().any(|s| s == text) {
+            return Some(0.0);
+        }
+        self.screw_templates.iter().find_map(|(before, after)| {
+            let rest = text.strip_prefix(before.as_str())?;
+            let number = rest.strip_suffix(after.as_str())?;
+            number.trim().parse::<f64>().ok().filter(|v| v.is_finite())
+        })
     }
 
     /// The plot for a preset: the controller of its `[polar]` table (with its r and θ
@@ -347,7 +394,18 @@ impl SpeedPlot {
             ..crate::passes::Context::default()
         };
         let model = crate::motion::Model::from_context(&ctx, None).with_rapid_feed(rapid_feed);
-        SpeedPlot::new(model, crate::motion::polar_axes(preset))
+        let mut plot = SpeedPlot::new(model, crate::motion::polar_axes(preset));
+        // The screw commands the preset's `extrude-rate` writes.
+        for spec in preset.passes.iter().filter(|p| p.name == "extrude-rate") {
+            let get = |k: &str| spec.options.get(k).and_then(|v| v.as_str());
+            let template = get("command")
+                .map(str::to_string)
+                .or_else(|| preset.polar.as_ref().map(|p| p.screw.rpm_command.clone()));
+            if let Some(t) = template {
+                plot = plot.with_screw_command(&t, get("stop_command"));
+            }
+        }
+        plot
     }
 
     /// The samples so far (complete after [`Backend::finish`]); thinned on long programs.
@@ -594,7 +652,7 @@ impl Backend for SpeedPlot {
             }
             BlockKind::Dwell { seconds } => self.planner.push_stop(*seconds, Item::Other),
             BlockKind::Command(c) => {
-                if let Some(r) = screw_rpm(&c.text) {
+                if let Some(r) = screw_rpm(&c.text).or_else(|| self.template_rpm(&c.text)) {
                     self.has_rpm = true;
                     self.planner.push_other(Item::Rpm(r));
                 }

@@ -964,4 +964,17 @@ fn plot_speed_draws_the_screw_rate() {
     let mut without = with.clone();
     without.passes.retain(|p| p.name != "extrude-rate");
     assert!(!svg(&without).0.contains("screw (rpm)"));
+    // A custom command template is read back too.
+    let custom = preset(
+        [0.0, 0.0],
+        &[
+            ("command", "M106 P2 S{rpm}".into()),
+            ("stop_command", "M107 P2".into()),
+        ],
+    );
+    let (out, _) = compile(SMALL, &custom, None);
+    assert!(out.contains("M106 P2 S") && out.contains("M107 P2") && !out.contains("M3 "));
+    let (text, rpm) = svg(&custom);
+    assert!(text.contains("screw (rpm)"));
+    assert!(rpm.iter().any(|r| (*r - top).abs() < 1e-9));
 }
