@@ -242,6 +242,9 @@ pub const INFO: PassInfo = PassInfo {
     defaults: || super::to_toml(&Options::default()),
 };
 
+/// Powers of ten for the printed precisions.
+const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
+
 /// E amounts below this (E units) are float dust from summing printed steps, not
 /// material.
 const E_EPS: f64 = 1e-9;
@@ -301,6 +304,8 @@ pub struct ExtrudeRate {
     pos: Joints,
     /// G92 offsets in force (program = IR + offset).
     offsets: [f64; AXIS_COUNT],
+    /// The last move's end as the input has it and as the controller reads it.
+    p_cache: Option<(Joints, Joints)>,
     /// Retracted E the screw never pulled back.
     pending: f64,
     /// Material of blocks that took no time, for the next extruding block.
@@ -390,6 +395,7 @@ impl ExtrudeRate {
             stop_command: options.stop_command.clone(),
             pos: Joints::default(),
             offsets: [0.0; AXIS_COUNT],
+            p_cache: None,
             pending: 0.0,
             carry: 0.0,
             held: None,
@@ -415,7 +421,7 @@ impl ExtrudeRate {
                 let places = d.axis(a);
                 let off = self.offsets[a.index()];
                 if let Some(u) = to_units(p.values[a.index()] + off, places) {
-                    p.values[a.index()] = u as f64 / 10f64.powi(places as i32) - off;
+                    p.values[a.index()] = u as f64 / POW10[places.min(9) as usize] - off;
                 }
             }
         }
@@ -628,11 +634,13 @@ impl ExtrudeRate {
                 if m.machine_frame {
                     next.forget(m.written);
                 }
-                let p_from = self.printed(&from);
-                let mut p_to = self.printed(&next);
-                if m.machine_frame {
-                    p_to = self.printed(&to);
-                }
+                // The last block's printed end is this one's start (most of the time).
+                let p_from = match self.p_cache {
+                    Some((j, p)) if j == from => p,
+                    _ => self.printed(&from),
+                };
+                let p_to = self.printed(if m.machine_frame { &to } else { &next });
+                self.p_cache = Some((next, p_to));
                 self.pos = next;
                 // Drop E from the move.
                 if let Some(j) = m.target.joints_mut() {
@@ -643,9 +651,10 @@ impl ExtrudeRate {
                     m.feed.rate = Some(self.printed_feed(f));
                 }
                 let seg = {
-                    let mut probe = m.clone();
-                    probe.target = Target::Joints(p_to);
-                    self.model.motion(&p_from, &probe)
+                    let target = std::mem::replace(&mut m.target, Target::Joints(p_to));
+                    let seg = self.model.motion(&p_from, m);
+                    m.target = target;
+                    seg
                 };
                 let Some(mut seg) = seg else {
                     self.planner.push_other(Item {
@@ -831,6 +840,7 @@ impl ExtrudeRate {
             }
             BlockKind::Offset(o) => {
                 self.offsets = o.offsets;
+                self.p_cache = None;
                 let named_e = o.declared.known.contains(Axis::E);
                 o.declared.forget(crate::ir::AxisSet::from_iter([Axis::E]));
                 o.offsets[Axis::E.index()] = 0.0;
