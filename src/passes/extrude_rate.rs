@@ -65,6 +65,8 @@
 //! gets `r · π / 180` times the material it needs (a fraction near the centre, too much
 //! beyond 57.3 mm), and mixed moves near the centre are off by tens of per cent
 //! (`tests/extrude_rate.rs` measures it). Blocks with no XY chord use the exact rule.
+//! The seed rule goes with `mode = "screw-rpm"` only, and `limit = "slow-feed"` does not
+//! apply to it (its rate does not depend on the block's time).
 //!
 //! # Retraction, travel and priming (screw modes)
 //! A screw cannot run backwards. A move that does not extrude (travel, Z moves, moves
@@ -341,6 +343,9 @@ impl ExtrudeRate {
         positive(max_rpm, "max_rpm")?;
         if !(options.threshold.is_finite() && (0.0..1.0).contains(&options.threshold)) {
             return Err("threshold must be a number from 0 to below 1".into());
+        }
+        if options.rule == Rule::Seed && options.mode != Mode::ScrewRpm {
+            return Err("rule = \"seed\" sets screw speeds: it needs mode = \"screw-rpm\"".into());
         }
         if options.rpm_decimals > 6 {
             return Err("rpm_decimals must be at most 6".into());
