@@ -961,7 +961,7 @@ impl ExtrudeRate {
         if self.group.is_empty() {
             self.group_start = self.pos;
         }
-        if let Some(j) = block.kind_joints() {
+        if let Some(j) = block_joints(&block) {
             for a in j.known.iter() {
                 self.pos.set(a, j.values[a.index()]);
             }
@@ -980,7 +980,7 @@ impl ExtrudeRate {
         let mut lengths = Vec::with_capacity(group.len());
         let mut ok = e0.is_some();
         for b in &group {
-            let Some(j) = b.kind_joints() else {
+            let Some(j) = block_joints(b) else {
                 ok = false;
                 break;
             };
@@ -1027,16 +1027,11 @@ impl ExtrudeRate {
     }
 }
 
-trait KindJoints {
-    fn kind_joints(&self) -> Option<&Joints>;
-}
-
-impl KindJoints for Block {
-    fn kind_joints(&self) -> Option<&Joints> {
-        match &self.kind {
-            BlockKind::Motion(m) => m.target.joints(),
-            _ => None,
-        }
+/// The joint target of a motion block.
+fn block_joints(b: &Block) -> Option<&Joints> {
+    match &b.kind {
+        BlockKind::Motion(m) => m.target.joints(),
+        _ => None,
     }
 }
 
