@@ -288,8 +288,14 @@ impl Pipeline {
                 summary.blocks_in += batch.len() as u64;
                 counter += batch.len() as u64;
                 {
+                    // Taking the whole batch when nothing is waiting saves copying it
+                    // (the usual case: the G-code pipeline has no passes on this side).
                     let mut send = |blocks: &mut Vec<Block>, _: &mut Vec<Diagnostic>| {
-                        ready.append(blocks);
+                        if ready.is_empty() {
+                            std::mem::swap(&mut ready, blocks);
+                        } else {
+                            ready.append(blocks);
+                        }
                     };
                     if end {
                         front_part.finish(&mut diags, &mut send);
