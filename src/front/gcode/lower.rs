@@ -563,8 +563,7 @@ impl Lowerer {
 
         let mut items = std::mem::take(&mut self.items);
         items.clear();
-        let parsed = super::grammar::LineParser::new()
-            .parse(&mut items, toks.iter().copied().map(Ok::<_, ()>));
+        let parsed = super::parse_tokens(&toks, &mut items);
         let parsed = match parsed {
             Ok(l) => l,
             Err(err) => {
