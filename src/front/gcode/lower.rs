@@ -2010,29 +2010,34 @@ pub fn parse_decimal(s: &str) -> Option<f64> {
         Some(b'+') => (false, &bytes[1..]),
         _ => (false, bytes),
     };
+    // At most 15 digits and a point: the mantissa is exact and cannot overflow.
+    if digits.len() > 16 {
+        return s.parse().ok();
+    }
     let mut mantissa: u64 = 0;
-    let mut count = 0usize;
-    let mut frac: Option<usize> = None;
-    for &b in digits {
-        match b {
-            b'0'..=b'9' => {
-                mantissa = mantissa * 10 + (b - b'0') as u64;
-                count += 1;
-                if let Some(f) = &mut frac {
-                    *f += 1;
-                }
-                if count > 15 {
-                    return s.parse().ok();
-                }
-            }
-            b'.' if frac.is_none() => frac = Some(0),
-            _ => return s.parse().ok(),
+    let mut point = usize::MAX;
+    for (i, &b) in digits.iter().enumerate() {
+        let d = b.wrapping_sub(b'0');
+        if d < 10 {
+            mantissa = mantissa * 10 + d as u64;
+        } else if b == b'.' && point == usize::MAX {
+            point = i;
+        } else {
+            return s.parse().ok();
         }
     }
+    let (count, frac) = if point == usize::MAX {
+        (digits.len(), 0)
+    } else {
+        (digits.len() - 1, digits.len() - 1 - point)
+    };
     if count == 0 {
         return None;
     }
-    let value = mantissa as f64 / POW10[frac.unwrap_or(0)];
+    if count > 15 {
+        return s.parse().ok();
+    }
+    let value = mantissa as f64 / POW10[frac];
     Some(if negative { -value } else { value })
 }
 
@@ -2314,5 +2319,15 @@ mod tests {
         }
         assert_eq!(parse_decimal("."), None);
         assert_eq!(parse_decimal("1.2.3"), None);
+    }
+
+    proptest::proptest! {
+        /// Any sign, up to 18 digits and at most one point, anywhere: the same bits as
+        /// `str::parse` (also the sign of zero), or both reject.
+        #[test]
+        fn decimal_matches_std_bitwise(s in "[+-]?[0-9]{0,18}(\\.[0-9]{0,18})?|[0-9.]{0,6}") {
+            let bits = |v: Option<f64>| v.map(f64::to_bits);
+            proptest::prop_assert_eq!(bits(parse_decimal(&s)), bits(s.parse::<f64>().ok()), "{}", s);
+        }
     }
 }
