@@ -212,6 +212,8 @@ pub(crate) struct Lowerer {
     in_subprogram: bool,
     /// Item buffer reused for every line.
     items: Vec<Item>,
+    /// Token buffer reused for every line (empty between lines).
+    toks: Vec<Spanned<'static>>,
     /// A non-blank line has been seen.
     saw_text: bool,
     /// A block of the main program has been seen.
@@ -273,6 +275,7 @@ impl Lowerer {
             meta_indent: None,
             in_subprogram: false,
             items: Vec::with_capacity(32),
+            toks: Vec::with_capacity(32),
             saw_text: false,
             program_started: false,
             calls_inline: false,
@@ -444,7 +447,6 @@ impl Lowerer {
             return;
         }
         let indent = text.len() - text.trim_start().len();
-        let line_no = span.line;
 
         // A RepRapFirmware meta block: its body is the lines indented deeper.
         if let Some(k) = self.meta_indent {
@@ -462,8 +464,25 @@ impl Lowerer {
             return;
         }
 
-        let toks: SmallVec<[Spanned<'_>; 24]> = super::lexer::tokens(text).collect();
+        // The token buffer is kept from line to line (a new one would be allocated or,
+        // on the stack, copied on every line).
+        let mut toks = recycle(std::mem::take(&mut self.toks));
+        toks.extend(super::lexer::tokens(text));
+        self.tokens(text, span, indent, &toks, out, diags);
+        self.toks = recycle(toks);
+    }
 
+    /// Lowers a line from its tokens (the rest of [`Lowerer::line`]).
+    fn tokens(
+        &mut self,
+        text: &str,
+        span: Span,
+        indent: usize,
+        toks: &[Spanned<'_>],
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) {
+        let line_no = span.line;
         if let Some(Tok::Ident(word)) = toks.first().map(|t| t.1) {
             let lower = word.to_ascii_lowercase();
             if META_KEYWORDS.contains(&lower.as_str()) {
@@ -487,8 +506,8 @@ impl Lowerer {
             }
         }
 
-        if let Some(kw) = oword_keyword(&toks) {
-            self.oword(text, span, &toks, kw, out, diags);
+        if let Some(kw) = oword_keyword(toks) {
+            self.oword(text, span, toks, kw, out, diags);
             return;
         }
         if !self.oword_stack.is_empty() {
@@ -529,11 +548,11 @@ impl Lowerer {
             return;
         }
 
-        if let Some(reason) = self.unplain(text, line_no, &toks, diags) {
+        if let Some(reason) = self.unplain(text, line_no, toks, diags) {
             match reason {
                 Unplain::Command => {
                     self.program_started = true;
-                    let clob = self.command_clobbers(&toks);
+                    let clob = self.command_clobbers(toks);
                     self.pos.forget(clob);
                     let mut block = Block::new(
                         span,
@@ -543,11 +562,11 @@ impl Lowerer {
                             clobbers: clob,
                         }),
                     );
-                    block.comments = comments_of(text, &toks);
+                    block.comments = comments_of(text, toks);
                     out.push(block);
                 }
                 Unplain::Unevaluated => {
-                    let keeps_modes = !self.apply_plain_modes(&toks);
+                    let keeps_modes = !self.apply_plain_modes(toks);
                     out.push(self.verbatim(
                         text,
                         span,
@@ -563,7 +582,7 @@ impl Lowerer {
 
         let mut items = std::mem::take(&mut self.items);
         items.clear();
-        let parsed = super::parse_tokens(&toks, &mut items);
+        let parsed = super::parse_tokens(toks, &mut items);
         let parsed = match parsed {
             Ok(l) => l,
             Err(err) => {
@@ -2041,6 +2060,15 @@ pub fn parse_decimal(s: &str) -> Option<f64> {
     Some(if negative { -value } else { value })
 }
 
+/// An empty token vector of another lifetime, keeping `v`'s allocation (collecting an
+/// emptied vector into one of the same layout reuses its memory).
+fn recycle<'b>(mut v: Vec<Spanned<'_>>) -> Vec<Spanned<'b>> {
+    v.clear();
+    v.into_iter()
+        .map(|_| unreachable!("the vector is empty"))
+        .collect()
+}
+
 /// Letter (upper case) and number (without blanks) of a word token.
 ///
 /// The lexer's word pattern allows blanks only between the letter and the number
@@ -2287,7 +2315,7 @@ fn describe(t: Tok<'_>) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_decimal;
+    use super::{Spanned, parse_decimal, recycle};
 
     #[test]
     fn arc_without_centre_is_an_error_from_an_unknown_start() {
@@ -2319,6 +2347,19 @@ mod tests {
         }
         assert_eq!(parse_decimal("."), None);
         assert_eq!(parse_decimal("1.2.3"), None);
+    }
+
+    /// The token buffer keeps its memory from line to line.
+    #[test]
+    fn recycled_token_buffer_keeps_its_allocation() {
+        let line = String::from("G1 X1 Y2");
+        let mut v: Vec<Spanned<'_>> = Vec::with_capacity(32);
+        v.extend(super::super::lexer::tokens(&line));
+        assert_eq!(v.len(), 3);
+        let at = v.as_ptr() as usize;
+        let w: Vec<Spanned<'static>> = recycle(v);
+        assert!(w.is_empty());
+        assert_eq!((w.as_ptr() as usize, w.capacity()), (at, 32));
     }
 
     proptest::proptest! {
