@@ -48,6 +48,18 @@ pub(crate) enum MotionMode {
 type Code = (u32, u32);
 
 fn parse_code(number: &str) -> Option<Code> {
+    // Most codes are one or two plain digits (`G1`, `M104`, `G90` have no point).
+    match *number.as_bytes() {
+        [a] if a.is_ascii_digit() => Some(((a - b'0') as u32, 0)),
+        [a, b] if a.is_ascii_digit() && b.is_ascii_digit() => {
+            Some((((a - b'0') * 10 + (b - b'0')) as u32, 0))
+        }
+        _ => parse_code_general(number),
+    }
+}
+
+/// [`parse_code`] for any number: sign, point, trailing zeros of the minor part.
+fn parse_code_general(number: &str) -> Option<Code> {
     let number = number.strip_prefix('+').unwrap_or(number);
     let (major, minor) = match number.split_once('.') {
         Some((a, b)) => (a, b.trim_end_matches('0')),
@@ -2080,7 +2092,13 @@ fn split_word(w: &str) -> (char, &str) {
 
 /// The number part of a word token.
 fn number_slice(w: &str) -> &str {
-    w.get(1..).unwrap_or("").trim_start_matches([' ', '\t'])
+    let rest = w.get(1..).unwrap_or("");
+    // Blanks after the letter are rare: look at one byte before trimming.
+    if matches!(rest.as_bytes().first(), Some(b' ' | b'\t')) {
+        rest.trim_start_matches([' ', '\t'])
+    } else {
+        rest
+    }
 }
 
 fn normalise_word(w: &str) -> String {
@@ -2315,7 +2333,7 @@ fn describe(t: Tok<'_>) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{Spanned, parse_decimal, recycle};
+    use super::{Spanned, number_slice, parse_code, parse_code_general, parse_decimal, recycle};
 
     #[test]
     fn arc_without_centre_is_an_error_from_an_unknown_start() {
@@ -2347,6 +2365,26 @@ mod tests {
         }
         assert_eq!(parse_decimal("."), None);
         assert_eq!(parse_decimal("1.2.3"), None);
+    }
+
+    /// The one- and two-digit shortcut of `parse_code` gives what the general parser gives.
+    #[test]
+    fn code_shortcut_matches_the_general_parser() {
+        let mut cases: Vec<String> = (0..1000).map(|i| i.to_string()).collect();
+        cases.extend((0..100).map(|i| format!("{i:02}")));
+        cases.extend(
+            [
+                "", "+1", "-1", "1.", "38.2", "38.20", "0.1", "a", "1a", " 1", "٣",
+            ]
+            .map(String::from),
+        );
+        for c in &cases {
+            assert_eq!(parse_code(c), parse_code_general(c), "{c:?}");
+        }
+        assert_eq!(parse_code("07"), Some((7, 0)));
+        assert_eq!(parse_code("38.2"), Some((38, 2)));
+        assert_eq!(number_slice("G 01"), "01");
+        assert_eq!(number_slice("X-1"), "-1");
     }
 
     /// The token buffer keeps its memory from line to line.
