@@ -479,7 +479,10 @@ impl Lowerer {
         // The token buffer is kept from line to line (a new one would be allocated or,
         // on the stack, copied on every line).
         let mut toks = recycle(std::mem::take(&mut self.toks));
-        toks.extend(super::lexer::tokens(text));
+        if !super::lexer::lex_plain(text, &mut toks) {
+            toks.clear();
+            toks.extend(super::lexer::tokens(text));
+        }
         self.tokens(text, span, indent, &toks, out, diags);
         self.toks = recycle(toks);
     }

@@ -361,7 +361,7 @@ mod tests {
     }
 
     /// Every line of every corpus G-code file: same result both ways; most lines are
-    /// accepted (the check is not vacuous).
+    /// accepted (the check is not vacuous). Also the hand lexer against logos.
     #[test]
     fn fast_path_equals_grammar_on_the_corpus() {
         let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gcode");
@@ -380,6 +380,8 @@ mod tests {
             for line in text.lines() {
                 lines += 1;
                 lex_line(line, &mut toks);
+                // The hand lexer (inside lex_line) gives the logos lexer's tokens.
+                assert_eq!(toks, lexer::tokens(line).collect::<Vec<_>>(), "{line:?}");
                 let fast = by_fast_path(&toks);
                 assert_eq!(fast, by_grammar(&toks), "{}: {line:?}", path.display());
                 if fast.is_some() {
