@@ -479,25 +479,37 @@ impl Lowerer {
         // The token buffer is kept from line to line (a new one would be allocated or,
         // on the stack, copied on every line).
         let mut toks = recycle(std::mem::take(&mut self.toks));
-        if !super::lexer::lex_plain(text, &mut toks) {
+        let plain = super::lexer::lex_plain(text, &mut toks);
+        if !plain {
             toks.clear();
             toks.extend(super::lexer::tokens(text));
         }
-        self.tokens(text, span, indent, &toks, out, diags);
+        self.tokens(text, span, indent, &toks, plain, out, diags);
         self.toks = recycle(toks);
     }
 
-    /// Lowers a line from its tokens (the rest of [`Lowerer::line`]).
+    /// Lowers a line from its tokens (the rest of [`Lowerer::line`]). `plain`: the hand
+    /// lexer took the line, so its tokens are words and comments only, which is neither
+    /// an o-word statement nor anything [`Lowerer::unplain`] sets aside (both checked in
+    /// debug builds).
+    #[allow(clippy::too_many_arguments)]
     fn tokens(
         &mut self,
         text: &str,
         span: Span,
         indent: usize,
         toks: &[Spanned<'_>],
+        plain: bool,
         out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
         let line_no = span.line;
+        debug_assert!(
+            !plain
+                || (oword_keyword(toks).is_none()
+                    && self.unplain(text, line_no, toks, &mut Vec::new()).is_none()),
+            "{text:?}"
+        );
         if let Some(Tok::Ident(word)) = toks.first().map(|t| t.1) {
             let lower = word.to_ascii_lowercase();
             if META_KEYWORDS.contains(&lower.as_str()) {
@@ -521,7 +533,7 @@ impl Lowerer {
             }
         }
 
-        if let Some(kw) = oword_keyword(toks) {
+        if !plain && let Some(kw) = oword_keyword(toks) {
             self.oword(text, span, toks, kw, out, diags);
             return;
         }
@@ -563,7 +575,7 @@ impl Lowerer {
             return;
         }
 
-        if let Some(reason) = self.unplain(text, line_no, toks, diags) {
+        if !plain && let Some(reason) = self.unplain(text, line_no, toks, diags) {
             match reason {
                 Unplain::Command => {
                     self.program_started = true;
