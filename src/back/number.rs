@@ -65,7 +65,11 @@ pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
         i -= 1;
         buf[i] = b'-';
     }
-    out.push_str(std::str::from_utf8(&buf[i..]).unwrap_or("0"));
+    // ASCII bytes pushed as chars: cheaper than validating the buffer as UTF-8.
+    out.reserve(buf.len() - i);
+    for &b in &buf[i..] {
+        out.push(char::from(b));
+    }
 }
 
 /// Prints `value` at `decimals` places (see [`write_units`]); `false` if it does not fit.
