@@ -431,8 +431,10 @@ impl Lowerer {
         } else {
             text
         };
-        let trimmed = text.trim();
-        if trimmed.is_empty() {
+        // Most lines start with a visible ASCII character: then they are not blank and
+        // have no indentation, and neither needs a (Unicode-aware) trim.
+        let starts_visible = text.as_bytes().first().is_some_and(u8::is_ascii_graphic);
+        if !starts_visible && text.trim().is_empty() {
             return;
         }
         self.saw_text = true;
@@ -458,7 +460,11 @@ impl Lowerer {
             );
             return;
         }
-        let indent = text.len() - text.trim_start().len();
+        let indent = if starts_visible {
+            0
+        } else {
+            text.len() - text.trim_start().len()
+        };
 
         // A RepRapFirmware meta block: its body is the lines indented deeper.
         if let Some(k) = self.meta_indent {
