@@ -436,6 +436,7 @@ fn stats(args: &StatsArgs) -> ExitCode {
 fn source_of(args: &PipelineArgs) -> Source {
     match args.from.unwrap_or_else(|| from_extension(&args.input)) {
         FromArg::Cl => Source::Cl,
+        FromArg::Hpgl => Source::Hpgl,
         _ => Source::Gcode,
     }
 }
@@ -480,11 +481,7 @@ fn run(
     let source = match args.from.unwrap_or_else(|| from_extension(&args.input)) {
         FromArg::Gcode => Source::Gcode,
         FromArg::Cl => Source::Cl,
-        FromArg::Hpgl => {
-            return usage(
-                "the HPGL frontend is not part of this version yet; give G-code (--from gcode) or CL data (--from cl)",
-            );
-        }
+        FromArg::Hpgl => Source::Hpgl,
     };
     if source == Source::Cl && !builder.preset_ref().passes.iter().any(|p| p.name == "ik") {
         let machines: Vec<&str> = BUILTIN

@@ -16,6 +16,8 @@ pub enum Source {
     Gcode,
     /// APT CL data (and NX CLSF listings).
     Cl,
+    /// HPGL pen plots (EAGLE, KiCad, plotter files).
+    Hpgl,
 }
 
 /// Counts of a finished run.
@@ -227,6 +229,10 @@ impl Pipeline {
                 let mut front = front::cl::Parser::new(input, self.preset.cl_input.clone());
                 self.run_threaded(&mut front, output, on_diag)
             }
+            Source::Hpgl => {
+                let mut front = front::hpgl::Parser::new(input, self.preset.hpgl_input.clone());
+                self.run_threaded(&mut front, output, on_diag)
+            }
         }
     }
 
@@ -364,6 +370,10 @@ impl Pipeline {
             }
             Source::Cl => {
                 let mut front = front::cl::Parser::new(input, self.preset.cl_input.clone());
+                self.run(&mut front, back, on_diag)
+            }
+            Source::Hpgl => {
+                let mut front = front::hpgl::Parser::new(input, self.preset.hpgl_input.clone());
                 self.run(&mut front, back, on_diag)
             }
         }

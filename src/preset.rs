@@ -51,6 +51,8 @@ pub struct Preset {
     pub gcode_input: front::gcode::Options,
     /// APT CL frontend options.
     pub cl_input: front::cl::Options,
+    /// HPGL frontend options (pen to cutter: depths, heights, feeds, spindle).
+    pub hpgl_input: front::hpgl::Options,
     /// Plain G-code backend options.
     pub gcode: gcode::Options,
     /// RepRapFirmware backend options.
@@ -69,6 +71,7 @@ pub const BUILTIN: &[(&str, &str)] = &[
         "polar-printer",
         include_str!("../passes/polar-printer.toml"),
     ),
+    ("pcb-mill", include_str!("../passes/pcb-mill.toml")),
 ];
 
 impl Preset {

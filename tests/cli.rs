@@ -553,7 +553,7 @@ fn unknown_pass_lists_the_passes() {
 }
 
 #[test]
-fn hpgl_input_is_refused_and_cl_needs_a_machine() {
+fn hpgl_input_runs_and_cl_needs_a_machine() {
     let dir = dir_with(&[
         ("part.apt", "GOTO/1,2,3\n"),
         ("part.cl", "GOTO/1,2,3\n"),
@@ -564,8 +564,6 @@ fn hpgl_input_is_refused_and_cl_needs_a_machine() {
     for (file, frontend, why) in [
         ("part.apt", "APT", "need a machine"),
         ("part.cl", "APT", "need a machine"),
-        ("board.hpgl", "HPGL", "not part of this version"),
-        ("board.plt", "HPGL", "not part of this version"),
     ] {
         let out = run_in(dir.path(), &["run", file, "-o", "out.gcode"], None);
         assert_exit(&out, 2);
@@ -576,9 +574,15 @@ fn hpgl_input_is_refused_and_cl_needs_a_machine() {
         let out = run_in(dir.path(), &["check", file], None);
         assert_exit(&out, 2);
     }
-    // --from overrides the extension.
+    // HPGL by extension: the pen-up move to 0,0 at the safe height.
+    for file in ["board.hpgl", "board.plt"] {
+        let out = run_in(dir.path(), &["run", file], None);
+        assert_exit(&out, 0);
+        assert_eq!(stdout(&out), "G21 G90\nG0 Z1\nG0 X0 Y0\nM2\n", "{file}");
+    }
+    // --from overrides the extension: G-code read as HPGL is an input error.
     let out = run_in(dir.path(), &["run", "--from", "hpgl", "in.gcode"], None);
-    assert_exit(&out, 2);
+    assert_exit(&out, 1);
     std::fs::copy(dir.path().join("in.gcode"), dir.path().join("prog.apt")).unwrap();
     let out = run_in(dir.path(), &["run", "--from", "gcode", "prog.apt"], None);
     assert_exit(&out, 0);

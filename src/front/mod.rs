@@ -2,6 +2,7 @@
 
 pub mod cl;
 pub mod gcode;
+pub mod hpgl;
 
 use std::io::{self, BufRead};
 
