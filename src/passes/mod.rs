@@ -12,9 +12,11 @@ pub mod heightmap;
 pub mod ik;
 pub mod limits;
 pub mod linearize_arcs;
+pub mod mirror;
 pub mod normalize;
 pub mod polar_ik;
 pub mod stats;
+pub mod transform;
 pub mod unwrap_rotary;
 pub mod verify;
 
@@ -116,6 +118,8 @@ pub const REGISTRY: &[PassInfo] = &[
     normalize::INFO,
     heightmap::INFO,
     expand_subprograms::INFO,
+    mirror::INFO,
+    transform::INFO,
 ];
 
 /// The registry entry for `name`.

@@ -505,7 +505,7 @@ impl Lowerer {
                         Diagnostic::error(
                             "hpgl::odd-coordinates",
                             format!(
-                                "{} has {} numbers: the last has no Y",
+                                "{} ends with an X without a Y (an odd count of numbers: {})",
                                 cmd.name(),
                                 nums.len()
                             ),
