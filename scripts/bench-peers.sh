@@ -98,6 +98,8 @@ if [[ ! -f $PREFIX ]]; then
 fi
 
 # ---------------------------------------------------------------- build ----
+# Binaries are where cargo puts them (CARGO_TARGET_DIR, default target/).
+BIN=${CARGO_TARGET_DIR:-target}/release
 log "building release binaries"
 has_ncpost_bin=$(cargo metadata --no-deps --format-version 1 2>/dev/null | python3 -c '
 import json, sys
@@ -168,12 +170,12 @@ timed() {
     log "  -> $(head -c 300 "$DATA/$name.stdout" | head -n 1)"
 }
 
-if [[ -x target/release/ncpost ]]; then
-    timed ncpost "$FILE" target/release/ncpost run --emit gcode -o "$OUT" "$FILE"
+if [[ -x $BIN/ncpost ]]; then
+    timed ncpost "$FILE" "$BIN/ncpost" run --emit gcode -o "$OUT" "$FILE"
 else
-    log "SKIP ncpost: target/release/ncpost does not exist (CLI not built yet)"
+    log "SKIP ncpost: $BIN/ncpost does not exist (CLI not built yet)"
 fi
-timed gcode-crate-0.7 "$FILE" target/release/examples/peer_gcode_crate "$FILE"
+timed gcode-crate-0.7 "$FILE" "$BIN/examples/peer_gcode_crate" "$FILE"
 timed pygcode-0.2.1 "$PREFIX" "$PY" scripts/peer_pygcode.py "$PREFIX"
 timed wc-l "$FILE" wc -l "$FILE"
 
