@@ -3,16 +3,18 @@
 //! Places a drawing on the stock: every XY point `p` becomes
 //!
 //! ```text
-//! p' = origin + R(rotate) · scale · (p - origin) + translate
+//! p' = origin + R(rotate) · scale · (p - origin) + (dx, dy)
 //! ```
 //!
 //! with `R` the counter-clockwise rotation about Z by `rotate` degrees. Z moves by
-//! `translate[2]` and is not scaled (cutting depths stay what the program says).
+//! `dz` and is not scaled (cutting depths stay what the program says).
 //!
 //! # Options
-//! - `translate` (`[x, y, z]` mm, default `[0, 0, 0]`).
+//! Scalars, so they can be given on the command line
+//! (`--pass transform:rotate=90,dx=50`):
+//! - `dx`, `dy`, `dz` (mm, default `0`): the translation.
 //! - `rotate` (degrees about Z, counter-clockwise seen from +Z, default `0`).
-//! - `origin` (`[x, y]` mm, default `[0, 0]`): the fixed point of rotation and scale.
+//! - `origin_x`, `origin_y` (mm, default `0`): the fixed point of rotation and scale.
 //! - `scale` (default `1`, not 0): the same factor on X and Y. A negative factor is a
 //!   half turn, not a mirror (use `mirror` for that).
 //!
@@ -45,12 +47,18 @@ use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, OffsetCode, Plane, T
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Options {
-    /// Translation `[x, y, z]`, mm, applied last.
-    pub translate: [f64; 3],
+    /// Translation in X, mm, applied last.
+    pub dx: f64,
+    /// Translation in Y, mm.
+    pub dy: f64,
+    /// Translation in Z, mm.
+    pub dz: f64,
     /// Rotation about Z, degrees, counter-clockwise.
     pub rotate: f64,
-    /// Fixed point of rotation and scale, `[x, y]` mm.
-    pub origin: [f64; 2],
+    /// X of the fixed point of rotation and scale, mm.
+    pub origin_x: f64,
+    /// Y of the fixed point of rotation and scale, mm.
+    pub origin_y: f64,
     /// Uniform XY scale factor.
     pub scale: f64,
 }
@@ -58,9 +66,12 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Options {
-            translate: [0.0; 3],
+            dx: 0.0,
+            dy: 0.0,
+            dz: 0.0,
             rotate: 0.0,
-            origin: [0.0; 2],
+            origin_x: 0.0,
+            origin_y: 0.0,
             scale: 1.0,
         }
     }
@@ -90,11 +101,11 @@ pub struct Transform {
 impl Transform {
     /// The pass with `options` (finite numbers, scale not 0).
     pub fn new(o: Options) -> Result<Transform, String> {
-        let finite = o.translate.iter().chain(&o.origin).all(|v| v.is_finite())
-            && o.rotate.is_finite()
-            && o.scale.is_finite();
+        let finite = [o.dx, o.dy, o.dz, o.rotate, o.origin_x, o.origin_y, o.scale]
+            .iter()
+            .all(|v| v.is_finite());
         if !finite {
-            return Err("translate, rotate, origin and scale must be numbers".into());
+            return Err("dx, dy, dz, rotate, origin_x, origin_y and scale must be numbers".into());
         }
         if o.scale == 0.0 {
             return Err("scale must not be 0".into());
@@ -111,8 +122,8 @@ impl Transform {
         let rot = Matrix2::new(c, -s, s, c);
         Ok(Transform {
             m: rot * o.scale,
-            origin: Vector2::new(o.origin[0], o.origin[1]),
-            translate: o.translate,
+            origin: Vector2::new(o.origin_x, o.origin_y),
+            translate: [o.dx, o.dy, o.dz],
             linear: turns != 0.0 || o.scale != 1.0,
             rot,
             warned: false,
