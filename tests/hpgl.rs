@@ -728,8 +728,10 @@ fn empty_input_and_long_lines() {
 
 #[test]
 fn too_long_commands_are_skipped() {
-    let mut o = Options::default();
-    o.max_command_len = 64;
+    let o = Options {
+        max_command_len: 64,
+        ..Options::default()
+    };
     let src = format!("PU0,0;PD{};PD40,0;PU;", "1,1,".repeat(40) + "1,1");
     let err = parse_str(&src, &o).unwrap_err();
     assert_eq!(err[0].code, "hpgl::too-long");

@@ -96,7 +96,7 @@ fn steps() -> impl Strategy<Value = Vec<Step>> {
     let line = (-200.0..200.0f64, -200.0..200.0f64, -5.0..5.0f64)
         .prop_map(|(x, y, z)| Step::Line(x, y, z));
     let arc = (
-        0.0..6.28f64,
+        0.0..std::f64::consts::TAU,
         0.1..80.0f64,
         0.05..6.2f64,
         any::<bool>(),
@@ -156,7 +156,9 @@ fn target(b: &Block) -> (Joints, MotionKind) {
 }
 
 /// (start, end, centre, clockwise) of every arc, with its start from the previous block.
-fn arcs(blocks: &[Block]) -> Vec<((f64, f64), (f64, f64), (f64, f64), bool)> {
+type ArcEnds = ((f64, f64), (f64, f64), (f64, f64), bool);
+
+fn arcs(blocks: &[Block]) -> Vec<ArcEnds> {
     let mut out = Vec::new();
     let mut pos = (f64::NAN, f64::NAN);
     for b in blocks {

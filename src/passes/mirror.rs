@@ -154,11 +154,10 @@ impl Mirror {
         let letter = a.letter();
         let mut unmirrored = None;
         match &mut block.kind {
-            BlockKind::Motion(m) if m.machine_frame => {
-                if m.written.contains(a) {
-                    unmirrored = Some("a machine-frame (G53) move");
-                }
+            BlockKind::Motion(m) if m.machine_frame && m.written.contains(a) => {
+                unmirrored = Some("a machine-frame (G53) move");
             }
+            BlockKind::Motion(m) if m.machine_frame => {}
             BlockKind::Motion(m) => {
                 match &mut m.target {
                     Target::Joints(j) => {
@@ -190,15 +189,13 @@ impl Mirror {
                 }
                 o.offsets[i] = -o.offsets[i];
             }
-            BlockKind::Command(c) => {
-                if c.modes.is_some() && c.text.to_ascii_uppercase().contains(letter) {
-                    unmirrored = Some("a command with coordinates");
-                }
+            BlockKind::Command(c)
+                if c.modes.is_some() && c.text.to_ascii_uppercase().contains(letter) =>
+            {
+                unmirrored = Some("a command with coordinates");
             }
-            BlockKind::Verbatim(v) => {
-                if v.text.to_ascii_uppercase().contains(letter) {
-                    unmirrored = Some("a line passed through as text");
-                }
+            BlockKind::Verbatim(v) if v.text.to_ascii_uppercase().contains(letter) => {
+                unmirrored = Some("a line passed through as text");
             }
             _ => {}
         }
