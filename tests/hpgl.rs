@@ -507,6 +507,23 @@ fn drill_marks_become_holes() {
     assert_eq!(dedup(&run.cuts), [(30.0, 10.0)]);
 }
 
+/// The seed's two path bugs (2006-11-20 and -21), as far as they concern the
+/// frontend: a figure that starts at the X where the previous one ended is cut, not
+/// travelled; the last figure is cut even without a final `PU`.
+#[test]
+fn seed_bugs_the_same_x_figure_and_the_last_figure_are_cut() {
+    // The seed's figure ends at X21.336 Y16.3068 and the next starts at X21.8186: here
+    // both at X 10 mm, as in the bug.
+    let run = simulate(&compile(
+        "PU0,0;PD400,400;PU;PU400,800;PD400,1200;PU;PU0,0;PD0,400",
+    ));
+    assert_eq!(run.plunges, 3);
+    assert_eq!(run.cuts, [(10.0, 10.0), (10.0, 30.0), (0.0, 10.0)]);
+    // The program still ends lifted, with the spindle off.
+    let out = compile("PU0,0;PD0,400");
+    assert!(out.ends_with("G1 Y10 F70\nG0 Z1\nM5\nM2\n"), "{out}");
+}
+
 #[test]
 fn pen_up_moves_merge_into_one_travel() {
     let run = simulate(&compile("PU0,0,400,0,400,400;PU800,800;PD0,800;PU;"));

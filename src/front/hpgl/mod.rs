@@ -38,6 +38,16 @@
 //! empty parameters, odd coordinate counts and stray characters are errors with line
 //! and column; reading goes on with the next command so one run reports them all.
 //!
+//! # Limits
+//!
+//! - Printer-driver wrappers around HP-GL/2 (PCL/PJL escape sequences such as
+//!   `ESC%-12345X`, `@PJL` lines) are not skipped: they are errors. Strip them first.
+//! - `PE` (polyline encoded), `RO` (rotate), `DF` and other HP-GL/2 commands are not
+//!   interpreted: they pass as comments with a warning, so a plot that relies on them
+//!   is cut differently than it would be drawn.
+//! - The chord angle of `CI`/`AA`/`AR` is ignored: arcs are exact G2/G3 (use
+//!   `linearize-arcs` for chords).
+//!
 //! # Memory
 //!
 //! Streaming: one command at a time (at most [`Options::max_command_len`] bytes, so a
