@@ -175,6 +175,7 @@ struct PipelineArgs {
 enum EmitArg {
     Rrf,
     Gcode,
+    Grbl,
     Ir,
 }
 
@@ -676,6 +677,7 @@ fn builder(
         b = b.emit(match e {
             EmitArg::Rrf => Emit::Rrf,
             EmitArg::Gcode => Emit::Gcode,
+            EmitArg::Grbl => Emit::Grbl,
             EmitArg::Ir => Emit::Ir,
         });
     }

@@ -66,6 +66,8 @@ pub struct Pipeline {
     preset: Preset,
     stages: Stages,
     progress: Option<Box<dyn FnMut(u64)>>,
+    /// Notes from building the pipeline, reported when it runs.
+    notes: Vec<Diagnostic>,
 }
 
 /// The passes and the IR dump point: everything between frontend and backend.
@@ -126,7 +128,30 @@ impl Builder {
     }
 
     /// Builds the passes; fails on an unknown pass, bad options or dump point.
-    pub fn build(self) -> Result<Pipeline, String> {
+    ///
+    /// Grbl has no subprograms: with `emit = grbl`, `expand-subprograms` is put first
+    /// when the preset lacks it, and the run starts with a note saying so.
+    pub fn build(mut self) -> Result<Pipeline, String> {
+        let mut notes = Vec::new();
+        if self.preset.emit == Emit::Grbl
+            && !self
+                .preset
+                .passes
+                .iter()
+                .any(|p| p.name == "expand-subprograms")
+        {
+            self.preset.passes.insert(
+                0,
+                PassSpec {
+                    name: "expand-subprograms".into(),
+                    options: toml::Table::new(),
+                },
+            );
+            notes.push(Diagnostic::note(
+                "grbl::expand-subprograms",
+                "Grbl has no subprograms: expand-subprograms runs first (it was not in the pipeline)",
+            ));
+        }
         if let Some(m) = &self.preset.machine {
             m.check().map_err(|e| format!("[machine]: {e}"))?;
         }
@@ -136,6 +161,7 @@ impl Builder {
             decimals: match self.preset.emit {
                 Emit::Rrf => Some(self.preset.rrf.decimals),
                 Emit::Gcode => Some(self.preset.gcode.decimals),
+                Emit::Grbl => Some(self.preset.grbl.decimals),
                 Emit::Ir => None,
             },
             timing: self.timing,
@@ -174,6 +200,7 @@ impl Builder {
                 dump: self.dump,
             },
             progress: None,
+            notes,
         })
     }
 }
@@ -245,12 +272,16 @@ impl Pipeline {
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Result<Summary, Diagnostic> {
         const BATCH: usize = 1024;
+        let mut summary = Summary::default();
+        if !self.notes.is_empty() {
+            let mut notes = self.notes.clone();
+            report(&mut notes, on_diag, &mut summary);
+        }
         let preset = &self.preset;
         let share = self.stages.front_share();
         let (mut front_part, mut back_part) = self.stages.split(share);
         let progress = &mut self.progress;
         let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Block>>(2);
-        let mut summary = Summary::default();
         let (blocks_out, back_diags) = std::thread::scope(|scope| {
             let worker = scope.spawn(move || {
                 let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
@@ -260,6 +291,7 @@ impl Pipeline {
                     let mut backend: Box<dyn Backend + '_> = match preset.emit {
                         Emit::Rrf => Box::new(back::rrf::Writer::new(&mut out, &preset.rrf)),
                         Emit::Gcode => Box::new(back::gcode::Writer::new(&mut out, &preset.gcode)),
+                        Emit::Grbl => Box::new(back::grbl::Writer::new(&mut out, &preset.grbl)),
                         Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
                     };
                     let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use crate::back::{gcode, rrf};
+use crate::back::{gcode, grbl, rrf};
 use crate::front;
 use crate::machine::Machine;
 
@@ -18,6 +18,8 @@ pub enum Emit {
     /// Plain ISO/LinuxCNC G-code.
     #[default]
     Gcode,
+    /// Grbl 1.1 (plain G-code restricted to Grbl's words; subprograms expanded).
+    Grbl,
     /// The IR text dump.
     Ir,
 }
@@ -57,6 +59,8 @@ pub struct Preset {
     pub gcode: gcode::Options,
     /// RepRapFirmware backend options.
     pub rrf: rrf::Options,
+    /// Grbl backend options.
+    pub grbl: grbl::Options,
 }
 
 /// Built-in presets: (name, TOML text).

@@ -32,6 +32,7 @@ fn stages(path: &str, preset_name: &str) -> String {
     let decimals = match preset.emit {
         Emit::Rrf => Some(preset.rrf.decimals),
         Emit::Gcode => Some(preset.gcode.decimals),
+        Emit::Grbl => Some(preset.grbl.decimals),
         Emit::Ir => None,
     };
     let ctx = Context {

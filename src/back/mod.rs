@@ -1,11 +1,12 @@
 //! Backends: IR blocks to text, written as they arrive.
 //!
-//! [`rrf`] (RepRapFirmware 3.x, CNC mode) and [`gcode`] (plain ISO/LinuxCNC) share one
-//! emitter that prints absolute millimetre coordinates at fixed precision and elides modal
+//! [`rrf`] (RepRapFirmware 3.x, CNC mode), [`gcode`] (plain ISO/LinuxCNC) and [`grbl`]
+//! (Grbl 1.1, the plain emitter restricted to Grbl's words) share one emitter that prints absolute millimetre coordinates at fixed precision and elides modal
 //! words (motion code, feed, plane, units, distance mode) and unchanged axes. [`ir`] prints
 //! the IR text dump.
 
 pub mod gcode;
+pub mod grbl;
 pub mod ir;
 pub mod number;
 pub mod rrf;
@@ -114,6 +115,7 @@ pub(crate) enum Flavor {
         unsupported: rrf::Unsupported,
     },
     Plain,
+    Grbl(grbl::Settings),
 }
 
 /// What the controller is known to be in after what has been printed. `None` means
@@ -144,6 +146,8 @@ pub(crate) struct Emitter<W: Write> {
     offsets: [f64; AXIS_COUNT],
     /// Running E in print units (IR frame), for relative extrusion.
     e_units: Option<i64>,
+    /// The span of the block being printed (for line-length errors).
+    span: crate::ir::Span,
 }
 
 impl<W: Write> Emitter<W> {
@@ -164,6 +168,7 @@ impl<W: Write> Emitter<W> {
             },
             offsets: [0.0; AXIS_COUNT],
             e_units: Some(0),
+            span: crate::ir::Span::default(),
         }
     }
 
@@ -243,6 +248,21 @@ impl<W: Write> Emitter<W> {
             own_lines = comments;
         }
         if !self.line.is_empty() {
+            if let Flavor::Grbl(_) = self.flavor {
+                let n = grbl::counted_length(&self.line);
+                if n > grbl::LINE_LIMIT {
+                    let text = std::mem::take(&mut self.line);
+                    return Err(Diagnostic::error(
+                        "grbl::line-length",
+                        format!(
+                            "`{text}` is {n} characters for Grbl (spaces and comments not counted); Grbl holds at most {} and skips a longer line (error:11)",
+                            grbl::LINE_LIMIT
+                        ),
+                    )
+                    .at_span(self.span)
+                    .with_help("shorten the line: fewer `decimals`, no `line_numbers`, or split the command"));
+                }
+            }
             self.line.push('\n');
             self.out.write_all(self.line.as_bytes()).map_err(io_error)?;
         }
@@ -331,6 +351,26 @@ impl<W: Write> Emitter<W> {
                 .with_help(
                     "set `inverse_time = true` in the rrf backend options if the firmware is 3.5+",
                 ));
+            }
+            if let (Flavor::Grbl(g), FeedMode::InverseTime) = (self.flavor, motion.feed.mode)
+                && !g.allow_g93
+            {
+                return Err(Diagnostic::error(
+                    "grbl::inverse-time",
+                    "inverse time feed (G93) is not allowed for this Grbl output",
+                )
+                .at_span(block.span)
+                .with_help(
+                    "Grbl 1.1 runs G93: set `allow_g93 = true` in the [grbl] options if these inverse-time feeds were computed for this machine; otherwise leave out the pass that made them (feed with `mode = \"g93\"`)",
+                ));
+            }
+            if let (Flavor::Grbl(_), FeedMode::PerRevolution) = (self.flavor, motion.feed.mode) {
+                return Err(Diagnostic::error(
+                    "grbl::feed-per-rev",
+                    "Grbl has no feed per revolution (G95)",
+                )
+                .at_span(block.span)
+                .with_help("convert the feeds to mm/min for this spindle speed"));
             }
             if let (Flavor::Rrf { .. }, FeedMode::PerRevolution) = (self.flavor, motion.feed.mode) {
                 return Err(Diagnostic::error(
@@ -452,6 +492,9 @@ impl<W: Write> Emitter<W> {
                 }
             }
         }
+        if let Flavor::Grbl(_) = self.flavor {
+            grbl_motion_check(&words, motion, block)?;
+        }
         let e_mode = words[Axis::E.index()].map(|_| {
             self.fmt.extrusion == Extrusion::Relative && !e_absolute_once && !motion.machine_frame
         });
@@ -556,6 +599,22 @@ impl<W: Write> Emitter<W> {
     }
 
     fn offset(&mut self, block: &Block, change: &OffsetChange) -> Result<(), Diagnostic> {
+        if let Flavor::Grbl(_) = self.flavor
+            && matches!(
+                change.code,
+                crate::ir::OffsetCode::Suspend | crate::ir::OffsetCode::Restore
+            )
+        {
+            return Err(Diagnostic::error(
+                "grbl::offset",
+                format!(
+                    "Grbl has no {} (it knows G92 and G92.1)",
+                    change.code.gcode()
+                ),
+            )
+            .at_span(block.span)
+            .with_help("add the `normalize` pass, which folds G92 offsets into the coordinates"));
+        }
         // The declared values are millimetres.
         if !change.declared.known.is_empty() && self.modes.metric != Some(true) {
             self.text("G21");
@@ -607,6 +666,42 @@ impl<W: Write> Emitter<W> {
         let mut text = cmd.text.as_str();
         let mut comments = std::borrow::Cow::Borrowed(&block.comments[..]);
         let kept;
+        let kept_grbl;
+        if let Flavor::Grbl(g) = self.flavor {
+            if cmd.text.split_whitespace().any(grbl::is_subprogram_word) {
+                return Err(grbl_subprogram(block, &cmd.text));
+            }
+            let (k, removed) = grbl::split_words(&cmd.text, &g);
+            if !removed.is_empty() {
+                let msg = format!("`{removed}` is not supported by Grbl 1.1");
+                match g.unsupported {
+                    rrf::Unsupported::Error => {
+                        return Err(Diagnostic::error("grbl::unsupported", msg)
+                            .at_span(block.span)
+                            .with_help("remove it, or set the grbl option `unsupported` to \"comment\" or \"keep\""));
+                    }
+                    rrf::Unsupported::Comment => {
+                        diags.push(
+                            Diagnostic::warning("grbl::unsupported", msg)
+                                .at_span(block.span)
+                                .with_help("it is written as a comment; set the grbl option `unsupported = \"keep\"` for a build that runs it (grblHAL)"),
+                        );
+                        let mut c = vec![Comment {
+                            text: format!("{removed}: not supported by Grbl"),
+                            style: CommentStyle::Paren,
+                        }];
+                        c.extend(block.comments.iter().cloned());
+                        comments = std::borrow::Cow::Owned(c);
+                        kept_grbl = k;
+                        text = &kept_grbl;
+                        if text.is_empty() {
+                            return self.end_line(&comments, false);
+                        }
+                    }
+                    rrf::Unsupported::Keep => {}
+                }
+            }
+        }
         if let Flavor::Rrf { unsupported, .. } = self.flavor {
             let (k, removed) = rrf::split_unsupported(&cmd.text);
             if !removed.is_empty() {
@@ -688,6 +783,9 @@ impl<W: Write> Emitter<W> {
     /// Prints a line as written, first putting the controller into the modes it was
     /// written in (at the top level only).
     fn verbatim(&mut self, block: &Block, v: &crate::ir::Verbatim) -> Result<(), Diagnostic> {
+        if let Flavor::Grbl(_) = self.flavor {
+            return self.grbl_verbatim(block, v);
+        }
         if v.reason == crate::ir::VerbatimReason::Delimiter {
             self.line.push_str(&v.text);
             return self.end_line(&block.comments, false);
@@ -736,11 +834,45 @@ impl<W: Write> Emitter<W> {
         Ok(())
     }
 
+    /// A line the IR passes as text, for Grbl: `%` is left out, an `O` number becomes a
+    /// comment, anything else (subprograms, control flow, parameters) is an error.
+    fn grbl_verbatim(&mut self, block: &Block, v: &crate::ir::Verbatim) -> Result<(), Diagnostic> {
+        use crate::ir::VerbatimReason;
+        let text = v.text.trim();
+        match v.reason {
+            VerbatimReason::Delimiter if text.starts_with('%') => {
+                self.end_line(&block.comments, false)
+            }
+            VerbatimReason::Delimiter => {
+                let mut c = vec![Comment {
+                    text: format!("program {}", text.replace(['(', ')'], "")),
+                    style: CommentStyle::Paren,
+                }];
+                c.extend(block.comments.iter().cloned());
+                self.end_line(&c, false)
+            }
+            VerbatimReason::Subprogram => Err(grbl_subprogram(block, text)),
+            VerbatimReason::ControlFlow | VerbatimReason::Unevaluated
+                if text.split_whitespace().any(grbl::is_subprogram_word)
+                    || text.starts_with(['o', 'O']) =>
+            {
+                Err(grbl_subprogram(block, text))
+            }
+            VerbatimReason::ControlFlow | VerbatimReason::Unevaluated => Err(Diagnostic::error(
+                "grbl::unevaluated",
+                format!("Grbl cannot run `{text}`: it has no parameters, expressions or control flow"),
+            )
+            .at_span(block.span)
+            .with_help("write the line with plain numbers, or use a controller that evaluates it (LinuxCNC)")),
+        }
+    }
+
     pub(crate) fn block(
         &mut self,
         block: &Block,
         diags: &mut Vec<Diagnostic>,
     ) -> Result<(), Diagnostic> {
+        self.span = block.span;
         match &block.kind {
             BlockKind::Motion(m) => self.motion(block, m),
             BlockKind::Dwell { seconds } => {
@@ -763,6 +895,51 @@ impl<W: Write> Emitter<W> {
     pub(crate) fn flush(&mut self) -> Result<(), Diagnostic> {
         self.out.flush().map_err(io_error)
     }
+}
+
+/// Grbl has no subprograms: a call, return or body left in the IR.
+fn grbl_subprogram(block: &Block, text: &str) -> Diagnostic {
+    Diagnostic::error(
+        "grbl::subprogram",
+        format!("Grbl has no subprograms, and `{text}` was not expanded"),
+    )
+    .at_span(block.span)
+    .with_help("expand-subprograms runs before the Grbl backend; it leaves a call with arguments or an expression (see its warning): write the call without them, or inline the body")
+}
+
+/// Grbl drives X, Y and Z only, and rejects `P` on an arc.
+fn grbl_motion_check(
+    words: &[Option<i64>; AXIS_COUNT],
+    motion: &Motion,
+    block: &Block,
+) -> Result<(), Diagnostic> {
+    let others: String = Axis::ALL
+        .iter()
+        .filter(|a| !matches!(a, Axis::X | Axis::Y | Axis::Z) && words[a.index()].is_some())
+        .map(|a| a.letter())
+        .collect();
+    if !others.is_empty() {
+        return Err(Diagnostic::error(
+            "grbl::axis",
+            format!("Grbl drives X, Y and Z only; this move also moves {others}"),
+        )
+        .at_span(block.span)
+        .with_help("emit for a controller with these axes (--emit rrf or gcode), or remove them"));
+    }
+    if let MotionKind::Arc(arc) = motion.kind
+        && arc.extra_turns > 0
+    {
+        return Err(Diagnostic::error(
+            "grbl::arc-turns",
+            format!(
+                "this arc makes {} full turns more than Grbl's G2/G3 can (Grbl rejects P on an arc)",
+                arc.extra_turns
+            ),
+        )
+        .at_span(block.span)
+        .with_help("add --pass linearize-arcs, which cuts the turns into straight moves"));
+    }
+    Ok(())
 }
 
 fn balanced(text: &str) -> bool {
