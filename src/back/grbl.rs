@@ -15,6 +15,10 @@
 //!   `"comment"`, `"keep"` for a grblHAL or patched build, or `"error"`), like the
 //!   RepRapFirmware flavour. The group removed is the code with the words after it up to
 //!   the next G, M or T word (`T1 M6` keeps `T1`; Grbl parses T and ignores it).
+//! - **Canned cycles, splines, threading** (G73, G76, G81-G89, G5.x, G33): always the
+//!   error `grbl::unsupported-motion` (a drilling cycle left out is holes not drilled).
+//!   Lines the IR passes as text that are plain words Grbl reads (probing `G38.2`) are
+//!   printed as written.
 //! - **Subprograms**: Grbl has no `M98`/`M99`, `O` programs or `o` words. The pipeline
 //!   runs `expand-subprograms` first whenever the output is Grbl (it inserts the pass
 //!   with a note when the preset lacks it). A call or control-flow line left after it (a
@@ -228,6 +232,23 @@ pub(crate) fn is_subprogram_word(word: &str) -> bool {
         crate::front::gcode::parse_decimal(chars.as_str()),
         Some(n) if n == 98.0 || n == 99.0
     )
+}
+
+/// Whether `word` is a motion code Grbl lacks: canned cycles (G73, G76, G81-G89),
+/// splines (G5.x), threading (G33.x). Such a line left out would leave cuts out, so it is
+/// an error whatever `unsupported` says.
+pub(crate) fn is_unsupported_motion(word: &str) -> bool {
+    let mut chars = word.chars();
+    if !matches!(chars.next(), Some('G' | 'g')) {
+        return false;
+    }
+    match crate::front::gcode::parse_decimal(chars.as_str()) {
+        Some(n) => {
+            let i = n.trunc();
+            i == 5.0 || i == 33.0 || i == 73.0 || i == 76.0 || (81.0..=89.0).contains(&i)
+        }
+        None => false,
+    }
 }
 
 /// Splits a command into the words Grbl runs and the groups it lacks (a G, M or T code

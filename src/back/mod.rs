@@ -148,6 +148,9 @@ pub(crate) struct Emitter<W: Write> {
     e_units: Option<i64>,
     /// The span of the block being printed (for line-length errors).
     span: crate::ir::Span,
+    /// Grbl: inside a subprogram or control-flow run already reported (its further
+    /// lines are not reported one by one).
+    grbl_quiet: bool,
 }
 
 impl<W: Write> Emitter<W> {
@@ -169,6 +172,7 @@ impl<W: Write> Emitter<W> {
             offsets: [0.0; AXIS_COUNT],
             e_units: Some(0),
             span: crate::ir::Span::default(),
+            grbl_quiet: false,
         }
     }
 
@@ -782,9 +786,16 @@ impl<W: Write> Emitter<W> {
 
     /// Prints a line as written, first putting the controller into the modes it was
     /// written in (at the top level only).
-    fn verbatim(&mut self, block: &Block, v: &crate::ir::Verbatim) -> Result<(), Diagnostic> {
-        if let Flavor::Grbl(_) = self.flavor {
-            return self.grbl_verbatim(block, v);
+    fn verbatim(
+        &mut self,
+        block: &Block,
+        v: &crate::ir::Verbatim,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), Diagnostic> {
+        if let Flavor::Grbl(g) = self.flavor
+            && self.grbl_verbatim(block, v, g, diags)?
+        {
+            return Ok(());
         }
         if v.reason == crate::ir::VerbatimReason::Delimiter {
             self.line.push_str(&v.text);
@@ -835,35 +846,90 @@ impl<W: Write> Emitter<W> {
     }
 
     /// A line the IR passes as text, for Grbl: `%` is left out, an `O` number becomes a
-    /// comment, anything else (subprograms, control flow, parameters) is an error.
-    fn grbl_verbatim(&mut self, block: &Block, v: &crate::ir::Verbatim) -> Result<(), Diagnostic> {
+    /// comment, subprograms, control flow, parameters and expressions are errors, and a
+    /// line of plain words the IR does not model (probing, canned cycles) is checked
+    /// word by word. `Ok(true)` when the line is dealt with, `Ok(false)` to print it as
+    /// written.
+    fn grbl_verbatim(
+        &mut self,
+        block: &Block,
+        v: &crate::ir::Verbatim,
+        g: grbl::Settings,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<bool, Diagnostic> {
         use crate::ir::VerbatimReason;
         let text = v.text.trim();
+        let cut = text.find(['(', ';']).unwrap_or(text.len());
+        let (code, rest) = (text[..cut].trim(), text[cut..].trim());
+        let body = matches!(
+            v.reason,
+            VerbatimReason::Subprogram | VerbatimReason::ControlFlow
+        );
+        if body && (self.grbl_quiet || code.is_empty()) {
+            // One error per subprogram or control-flow run; the output fails anyway.
+            return Ok(true);
+        }
+        self.grbl_quiet = body;
         match v.reason {
-            VerbatimReason::Delimiter if text.starts_with('%') => {
-                self.end_line(&block.comments, false)
+            VerbatimReason::Delimiter if code.starts_with('%') => {
+                self.line.push_str(rest);
+                self.end_line(&block.comments, false)?;
+                Ok(true)
             }
             VerbatimReason::Delimiter => {
-                let mut c = vec![Comment {
-                    text: format!("program {}", text.replace(['(', ')'], "")),
-                    style: CommentStyle::Paren,
-                }];
-                c.extend(block.comments.iter().cloned());
-                self.end_line(&c, false)
+                self.line
+                    .push_str(format!("(program {code}) {rest}").trim_end());
+                self.end_line(&block.comments, false)?;
+                Ok(true)
             }
             VerbatimReason::Subprogram => Err(grbl_subprogram(block, text)),
-            VerbatimReason::ControlFlow | VerbatimReason::Unevaluated
-                if text.split_whitespace().any(grbl::is_subprogram_word)
-                    || text.starts_with(['o', 'O']) =>
+            _ if code.split_whitespace().any(grbl::is_subprogram_word)
+                || code.starts_with(['o', 'O']) =>
             {
-                Err(grbl_subprogram(block, text))
+                Err(grbl_subprogram(block, code))
             }
-            VerbatimReason::ControlFlow | VerbatimReason::Unevaluated => Err(Diagnostic::error(
-                "grbl::unevaluated",
-                format!("Grbl cannot run `{text}`: it has no parameters, expressions or control flow"),
-            )
-            .at_span(block.span)
-            .with_help("write the line with plain numbers, or use a controller that evaluates it (LinuxCNC)")),
+            _ if v.reason == VerbatimReason::ControlFlow || code.contains(['#', '[', '<']) => {
+                Err(Diagnostic::error(
+                    "grbl::unevaluated",
+                    format!(
+                        "Grbl cannot run `{code}`: it has no parameters, expressions or control flow"
+                    ),
+                )
+                .at_span(block.span)
+                .with_help(
+                    "write the line with plain numbers, or use a controller that evaluates it (LinuxCNC)",
+                ))
+            }
+            _ => {
+                let (_, removed) = grbl::split_words(code, &g);
+                if removed.is_empty() || g.unsupported == rrf::Unsupported::Keep {
+                    return Ok(false);
+                }
+                if removed.split_whitespace().any(grbl::is_unsupported_motion) {
+                    return Err(Diagnostic::error(
+                        "grbl::unsupported-motion",
+                        format!("Grbl 1.1 has no canned cycles, splines or threading: `{code}`"),
+                    )
+                    .at_span(block.span)
+                    .with_help("let the CAM write the cycle as G0/G1 moves (Grbl would skip the line and not cut it)"));
+                }
+                let msg = format!("`{removed}` is not supported by Grbl 1.1");
+                if g.unsupported == rrf::Unsupported::Error {
+                    return Err(Diagnostic::error("grbl::unsupported", msg)
+                        .at_span(block.span)
+                        .with_help("remove it, or set the grbl option `unsupported` to \"comment\" or \"keep\""));
+                }
+                diags.push(
+                    Diagnostic::warning("grbl::unsupported", msg)
+                        .at_span(block.span)
+                        .with_help("the line is written as a comment; set the grbl option `unsupported = \"keep\"` for a build that runs it (grblHAL)"),
+                );
+                self.line
+                    .push_str(format!("({}: not supported by Grbl) {rest}", code.replace(['(', ')'], "")).trim_end());
+                self.end_line(&block.comments, false)?;
+                self.forget(v.clobbers);
+                Ok(true)
+            }
         }
     }
 
@@ -873,6 +939,10 @@ impl<W: Write> Emitter<W> {
         diags: &mut Vec<Diagnostic>,
     ) -> Result<(), Diagnostic> {
         self.span = block.span;
+        if !matches!(&block.kind, BlockKind::Verbatim(v) if matches!(v.reason, crate::ir::VerbatimReason::Subprogram | crate::ir::VerbatimReason::ControlFlow))
+        {
+            self.grbl_quiet = false;
+        }
         match &block.kind {
             BlockKind::Motion(m) => self.motion(block, m),
             BlockKind::Dwell { seconds } => {
@@ -887,7 +957,7 @@ impl<W: Write> Emitter<W> {
             }
             BlockKind::Offset(o) => self.offset(block, o),
             BlockKind::Command(c) => self.command(block, c, diags),
-            BlockKind::Verbatim(v) => self.verbatim(block, v),
+            BlockKind::Verbatim(v) => self.verbatim(block, v, diags),
             BlockKind::Comment => self.end_line(&block.comments, false),
         }
     }
