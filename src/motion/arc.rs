@@ -17,7 +17,9 @@
 //! - Chords: `n` equal angle steps. The sagitta of a chord over the angle `δ` of a circle
 //!   of radius `r` is `r (1 - cos(δ/2))`; the chord count is the smallest `n` with
 //!   `r_max (1 - cos(|sweep| / 2n)) <= tolerance` and `|sweep| / n <= π`, computed in
-//!   closed form and then checked (and raised) against that inequality. Along the normal
+//!   closed form and then checked (and raised) against that inequality. For a spiral
+//!   (start and end radii differ) the bound [`ArcPath::sagitta`] adds the chord error of
+//!   the radius change. Along the normal
 //!   axis chord and helix agree at equal `t`, so the helix stays within the same bound
 //!   of its chords. Every vertex is computed on the arc (`c + r (cos φ, sin φ)`); the
 //!   last one is the block's target exactly.
@@ -155,11 +157,31 @@ impl ArcPath {
         self.r0.max(self.r1)
     }
 
-    /// The sagitta of `n` equal chords (largest distance of a circle of the larger radius
-    /// from its chords), mm.
+    /// The radius change per radian swept, mm/rad (0 for a circle).
+    pub fn radius_rate(&self) -> f64 {
+        if self.sweep == 0.0 {
+            0.0
+        } else {
+            (self.r1 - self.r0) / self.sweep.abs()
+        }
+    }
+
+    /// An upper bound of the distance of the path from its `n` equal chords, mm: the
+    /// sagitta `r_max (1 - cos h)` of the circle of the larger radius over the half
+    /// chord angle `h`, plus, for a spiral, the interpolation error of the radius change:
+    /// with `r = r_m + k (φ - φ_m)` the path is the circle of radius `r_m` plus
+    /// `f(φ) = k (φ - φ_m) e_r(φ)`, whose second derivative is at most
+    /// `|k| sqrt(4 + h²)`, so its chord error is at most `|k| h² sqrt(4 + h²) / 2`.
+    /// Exact for a circle.
     pub fn sagitta(&self, n: usize) -> f64 {
-        let half = self.sweep.abs() / (2 * n.max(1)) as f64;
-        self.max_radius() * (1.0 - half.min(std::f64::consts::FRAC_PI_2).cos())
+        let half = (self.sweep.abs() / (2 * n.max(1)) as f64).min(std::f64::consts::FRAC_PI_2);
+        let circle = self.max_radius() * (1.0 - half.cos());
+        let k = self.radius_rate().abs();
+        if k == 0.0 {
+            circle
+        } else {
+            circle + k * half * half * (4.0 + half * half).sqrt() / 2.0
+        }
     }
 
     /// The smallest number of equal chords whose sagitta is within `tolerance` (> 0),
@@ -180,9 +202,20 @@ impl ArcPath {
             1
         };
         let mut n = by_half_turns.max(by_tolerance).clamp(1, MAX_CHORDS);
-        // The closed form can be one short after rounding: check it.
+        // The closed form can be one short after rounding, or a spiral's radius change
+        // needs more: check it.
+        let mut steps = 0;
         while n < MAX_CHORDS && self.sagitta(n) > tolerance {
             n += 1;
+            steps += 1;
+            if steps == 8 {
+                // A spiral: `h² (r_max / 2 + |k| sqrt(4 + π²/4) / 2) <= tolerance`
+                // bounds the sagitta from above (1 - cos h <= h²/2, h <= π/2).
+                let c = r / 2.0 + self.radius_rate().abs() * 1.19;
+                let h = (tolerance / c).sqrt();
+                let by_spiral = (total / (2.0 * h)).ceil().min(MAX_CHORDS as f64) as usize;
+                n = n.max(by_spiral);
+            }
         }
         n
     }

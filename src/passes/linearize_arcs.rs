@@ -8,7 +8,10 @@
 //! - `tolerance` (mm, default `0.002`): the largest distance of the arc from its chords
 //!   (the sagitta). The chord count is the smallest `n` with
 //!   `r (1 - cos(|sweep| / 2n)) <= tolerance` (`r` the larger of the start and end
-//!   radii), each chord over at most half a turn; it is computed and then checked.
+//!   radii), each chord over at most half a turn; it is computed and then checked. When
+//!   the source's end point is off the circle (a spiral, below) the bound also counts
+//!   the chord error of the radius change ([`crate::motion::arc::ArcPath::sagitta`]),
+//!   so the path stays within `tolerance` of its chords there too.
 //!
 //! # Geometry
 //! The arc is the one [`crate::motion::arc`] defines and the frontend resolved: G17, G18
