@@ -64,10 +64,10 @@ fn cuts(input: &[Block], output: &[Block]) -> Vec<Cut> {
         };
         let mut vertices = Vec::new();
         while k < output.len() && output[k].span == b.span {
-            if let BlockKind::Motion(o) = &output[k].kind {
-                if let (MotionKind::Linear, Target::Joints(j)) = (o.kind, &o.target) {
-                    vertices.push(*j);
-                }
+            if let BlockKind::Motion(o) = &output[k].kind
+                && let (MotionKind::Linear, Target::Joints(j)) = (o.kind, &o.target)
+            {
+                vertices.push(*j);
             }
             k += 1;
         }
