@@ -18,6 +18,7 @@ pub mod polar_ik;
 pub mod stats;
 pub mod transform;
 pub mod unwrap_rotary;
+pub mod valve_lookahead;
 pub mod verify;
 
 use serde::de::DeserializeOwned;
@@ -114,6 +115,7 @@ pub const REGISTRY: &[PassInfo] = &[
     limits::INFO,
     polar_ik::INFO,
     extrude_rate::INFO,
+    valve_lookahead::INFO,
     linearize_arcs::INFO,
     normalize::INFO,
     heightmap::INFO,
