@@ -233,7 +233,10 @@ fn material_per_move(
     // Skip the printed moves before the first input move with both ends known.
     let mut out = Vec::new();
     let mut started = false;
-    for mv in input.iter().filter(|m| m.moves) {
+    let moving: Vec<&InputMove> = input.iter().filter(|m| m.moves).collect();
+    for (k, &mv) in moving.iter().enumerate() {
+        // The next input move ends elsewhere: pieces still ending here are this move's.
+        let next_elsewhere = moving.get(k + 1).is_none_or(|n| !close(&n.end, &mv.end));
         let mut material = 0.0;
         if !started {
             // The first input move with X and Y known: its printed end.
@@ -250,9 +253,13 @@ fn material_per_move(
         while let Some(p) = it.next() {
             material += p.rpm / 60.0 * p.seconds * e_per_rev;
             if p.motion && p.end.is_some_and(|e| close(&e, &mv.end)) {
-                // Zero-time pieces at the same point (F-only lines) belong here too.
+                // Later pieces that still end at this point belong here too: F-only
+                // lines, and the tail of a move split within the print precision of
+                // its end (a valve command just before a stop).
                 while let Some(q) = it.peek() {
-                    if q.motion && q.seconds == 0.0 && q.end.is_some_and(|e| close(&e, &mv.end)) {
+                    let here = q.end.is_some_and(|e| close(&e, &mv.end));
+                    if q.motion && here && (q.seconds == 0.0 || next_elsewhere) {
+                        material += q.rpm / 60.0 * q.seconds * e_per_rev;
                         it.next();
                     } else {
                         break;
@@ -913,7 +920,11 @@ fn snapshots_before_and_after() {
             vec![("mode", "constant-flow".into()), ("rpm", 30.0.into())],
         ),
     ] {
-        let (out, diags) = compile(SMALL, &preset([0.0, 0.0], &options), None);
+        // The pass's own before/after: the preset without the valve's commands (their
+        // snapshots are in tests/valve.rs).
+        let mut p = preset([0.0, 0.0], &options);
+        p.passes.retain(|spec| spec.name != "valve-lookahead");
+        let (out, diags) = compile(SMALL, &p, None);
         let warnings: Vec<String> = diags
             .iter()
             .filter(|d| d.severity == Severity::Warning)

@@ -248,7 +248,8 @@ struct Item {
     end_id: u64,
     start: f64,
     dur: f64,
-    profile: Option<Profile>,
+    /// Entry and exit speed of a move as timed.
+    speeds: (f64, f64),
 }
 
 impl Item {
@@ -263,6 +264,15 @@ impl Item {
     }
     fn is_stop(&self) -> bool {
         matches!(self.kind, Kind::Dwell { .. } | Kind::Barrier)
+    }
+}
+
+/// Seconds an item takes at constant velocity (a dwell its time).
+fn cv_duration(kind: &Kind) -> f64 {
+    match kind {
+        Kind::Move(m) if m.seg.moves() => m.seg.length / m.seg.v_max,
+        Kind::Dwell { seconds, .. } => seconds.max(0.0),
+        _ => 0.0,
     }
 }
 
@@ -328,6 +338,8 @@ pub struct ValveLookahead {
     base_time: f64,
     base_last: Option<(Segment, f64)>,
     dirty: bool,
+    scratch_moving: Vec<usize>,
+    scratch_stops: Vec<usize>,
     /// Settling re-places a command: no warnings again.
     replacing: bool,
     next_check: usize,
@@ -411,6 +423,8 @@ impl ValveLookahead {
             base_time: 0.0,
             base_last: None,
             dirty: false,
+            scratch_moving: Vec::new(),
+            scratch_stops: Vec::new(),
             replacing: false,
             next_check: 32,
             in_run: false,
@@ -508,7 +522,7 @@ impl ValveLookahead {
             end_id: id,
             start: 0.0,
             dur: 0.0,
-            profile: None,
+            speeds: (0.0, 0.0),
         }
     }
 
@@ -630,17 +644,32 @@ impl ValveLookahead {
     /// `lookahead` moves after it up to the next stop, and must be able to stop at the
     /// end of what it knows.
     fn retime(&mut self) {
+        self.dirty = false;
+        if self.window == 0 {
+            // Constant velocity: every block's time is its own.
+            let mut time = self.base_time;
+            for it in self.items.iter_mut() {
+                it.start = time;
+                it.dur = cv_duration(&it.kind);
+                time = it.end();
+            }
+            return;
+        }
         let n = self.items.len();
-        let mut time = self.base_time;
         let mut last = self.base_last;
         // Moving moves by position, and for each item the index of the next stop.
-        let mut moving: Vec<usize> = Vec::new();
-        for (i, it) in self.items.iter().enumerate() {
-            if it.moving().is_some() {
-                moving.push(i);
-            }
-        }
-        let mut next_stop = vec![n; n + 1];
+        let mut moving = std::mem::take(&mut self.scratch_moving);
+        let mut next_stop = std::mem::take(&mut self.scratch_stops);
+        moving.clear();
+        next_stop.clear();
+        moving.extend(
+            self.items
+                .iter()
+                .enumerate()
+                .filter(|(_, it)| it.moving().is_some())
+                .map(|(i, _)| i),
+        );
+        next_stop.resize(n + 1, n);
         for i in (0..n).rev() {
             next_stop[i] = if self.items[i].is_stop() {
                 i
@@ -648,24 +677,20 @@ impl ValveLookahead {
                 next_stop[i + 1]
             };
         }
+        let mut time = self.base_time;
         let mut k = 0usize;
         for (i, &stop) in next_stop.iter().enumerate().take(n) {
-            let (seg, stop_dwell) = match &self.items[i].kind {
-                Kind::Move(m) => (Some(m.seg), None),
-                Kind::Dwell { seconds, .. } => (None, Some(*seconds)),
-                Kind::Barrier => (None, Some(0.0)),
-                Kind::Other | Kind::Marker(_) => (None, None),
+            let seg = match &self.items[i].kind {
+                Kind::Move(m) if m.seg.moves() => Some(m.seg),
+                Kind::Dwell { .. } | Kind::Barrier => {
+                    last = None;
+                    None
+                }
+                _ => None,
             };
-            let (dur, profile) = if let Some(d) = stop_dwell {
-                last = None;
-                (d.max(0.0), None)
-            } else if let Some(mut seg) = seg {
-                let p = if self.window == 0 || !seg.moves() {
-                    if self.window == 0 {
-                        seg.accel = f64::INFINITY;
-                    }
-                    Profile::new(&seg, 0.0, 0.0)
-                } else {
+            let (dur, speeds) = match seg {
+                None => (cv_duration(&self.items[i].kind), (0.0, 0.0)),
+                Some(seg) => {
                     // This move is moving[k]; its window ends at the next stop.
                     let mut end = k;
                     while end + 1 < moving.len() && end < k + self.window && moving[end + 1] < stop
@@ -691,22 +716,30 @@ impl ValveLookahead {
                     let exit = exit.min((entry * entry + 2.0 * seg.accel * seg.length).sqrt());
                     let p = Profile::new(&seg, entry, exit);
                     last = Some((seg, p.v_exit));
-                    p
-                };
-                if seg.moves() {
                     k += 1;
+                    (p.duration(), (p.v_entry, p.v_exit))
                 }
-                (p.duration(), Some(p))
-            } else {
-                (0.0, None)
             };
             let it = &mut self.items[i];
             it.start = time;
             it.dur = dur;
-            it.profile = profile;
+            it.speeds = speeds;
             time = it.end();
         }
-        self.dirty = false;
+        self.scratch_moving = moving;
+        self.scratch_stops = next_stop;
+    }
+
+    /// The speed profile of a held move as last timed.
+    fn profile_of(&self, it: &Item) -> Option<Profile> {
+        let Kind::Move(m) = &it.kind else {
+            return None;
+        };
+        let mut seg = m.seg;
+        if self.window == 0 {
+            seg.accel = f64::INFINITY;
+        }
+        Some(Profile::new(&seg, it.speeds.0, it.speeds.1))
     }
 
     fn ensure_timed(&mut self) {
@@ -746,7 +779,7 @@ impl ValveLookahead {
         let it = &self.items[i];
         let (first, second) = match &it.kind {
             Kind::Move(m) => {
-                let prof = it.profile?;
+                let prof = self.profile_of(it)?;
                 let f = prof.fraction_at(dt);
                 if !(f > 1e-9 && f < 1.0 - 1e-9) {
                     return None;
@@ -837,7 +870,7 @@ impl ValveLookahead {
             end_id: mid_end,
             start: 0.0,
             dur: 0.0,
-            profile: None,
+            speeds: (0.0, 0.0),
         };
         let b = Item {
             block: second.0,
@@ -847,7 +880,7 @@ impl ValveLookahead {
             end_id,
             start: 0.0,
             dur: 0.0,
-            profile: None,
+            speeds: (0.0, 0.0),
         };
         self.items[i] = a;
         self.items.insert(i + 1, b);
@@ -1220,8 +1253,15 @@ impl ValveLookahead {
         let breaks = barrier || cv > 0.0;
         let extruding = item.extruding;
         let (start_id, end_id, span) = (item.start_id, item.end_id, item.block.span);
+        let mut item = item;
+        if self.window == 0 && !self.dirty {
+            // Constant velocity: the new block's time follows from the last one's.
+            item.start = self.items.back().map_or(self.base_time, Item::end);
+            item.dur = cv_duration(&item.kind);
+        } else {
+            self.dirty = true;
+        }
         self.items.push_back(item);
-        self.dirty = true;
         if extruding {
             if !self.in_run {
                 if self.close_pending && !barrier {
@@ -1344,9 +1384,7 @@ impl ValveLookahead {
             match &it.kind {
                 Kind::Dwell { .. } | Kind::Barrier => self.base_last = None,
                 Kind::Move(m) if m.seg.moves() => {
-                    if let Some(p) = it.profile {
-                        self.base_last = Some((m.seg, p.v_exit));
-                    }
+                    self.base_last = Some((m.seg, it.speeds.1));
                 }
                 Kind::Marker(id) => {
                     self.events.remove(id);
@@ -1354,9 +1392,6 @@ impl ValveLookahead {
                 _ => {}
             }
             out.push(it.block);
-        }
-        if forced > 0 {
-            self.dirty = true;
         }
     }
 
