@@ -4,6 +4,7 @@
 //! (serde, `deny_unknown_fields`) and a one-line summary, and is listed in [`REGISTRY`],
 //! which is also where the command line gets its list of valid names.
 
+pub mod backlash;
 pub mod densify;
 pub mod expand_subprograms;
 pub mod extrude_rate;
@@ -119,6 +120,7 @@ pub const REGISTRY: &[PassInfo] = &[
     linearize_arcs::INFO,
     normalize::INFO,
     heightmap::INFO,
+    backlash::INFO,
     expand_subprograms::INFO,
     mirror::INFO,
     transform::INFO,
