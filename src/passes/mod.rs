@@ -14,6 +14,7 @@ pub mod limits;
 pub mod linearize_arcs;
 pub mod mirror;
 pub mod normalize;
+pub mod order_paths;
 pub mod polar_ik;
 pub mod stats;
 pub mod transform;
@@ -121,6 +122,7 @@ pub const REGISTRY: &[PassInfo] = &[
     heightmap::INFO,
     expand_subprograms::INFO,
     mirror::INFO,
+    order_paths::INFO,
     transform::INFO,
 ];
 
