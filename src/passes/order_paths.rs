@@ -47,12 +47,15 @@
 //! lines passed through as text (parameters, control flow, subprograms), arcs and moves
 //! carrying extra words at travel height, machine-frame (`G53`) moves, moves from or to a
 //! position that is not known, and moves that change an axis other than X, Y and Z
-//! between groups. A segment whose groups change other axes is not reordered. Before a
-//! barrier that depends on where the tool is (an offset, a text line, a command with
-//! coordinates or one that makes a position unknown) and before travel the input made
-//! after its last group (a park move), the tool travels to where the input had it, so
-//! the barrier sees the same position; before the other barriers (spindle, tool change,
-//! program end, dwell) only the Z is restored.
+//! between groups. A segment whose groups change other axes is not reordered.
+//!
+//! After the last group of a segment the tool travels back to where the input had it
+//! before the barrier, so the barrier (a G92 declares the current position!) and the
+//! moves after it see the same position and later travel cannot grow. The one exception:
+//! when only barriers that do not depend on the position (spindle, tool change, dwell,
+//! comments) and then the program end (`M2`, `M30`) or the end of the input follow, and
+//! the input made no travel after its last group, the segment ends where its last group
+//! does (only Z is restored).
 //!
 //! A barrier inside a cut group (an `M` code while cutting) ends the segment: the groups
 //! before it are ordered with the interrupted group last, which is written unchanged
@@ -220,6 +223,11 @@ pub struct OrderPaths {
     /// output order after a flush).
     pos: Joints,
     seg: Segment,
+    /// Barriers that do not care where the tool is (`M5`, `T2 M6`, `G4`, comments) after
+    /// a segment with groups: whether the segment may end anywhere depends on what comes
+    /// after them (a program end: yes; a move: no, the tool returns to where the input
+    /// had it, so later travel is not lengthened).
+    held: Vec<Block>,
     // Run totals for the note.
     before: f64,
     after: f64,
@@ -263,6 +271,7 @@ impl OrderPaths {
             state: State::Travel,
             pos: Joints::default(),
             seg: Segment::new(),
+            held: Vec::new(),
             before: 0.0,
             after: 0.0,
             groups: 0,
@@ -316,6 +325,20 @@ impl OrderPaths {
             BlockKind::Command(c) => c.modes.is_some() || !c.clobbers.is_empty(),
             BlockKind::Dwell { .. } | BlockKind::Comment => false,
             _ => true,
+        }
+    }
+
+    /// `M2` / `M30`: nothing moves after it.
+    fn program_end(block: &Block) -> bool {
+        matches!(&block.kind, BlockKind::Command(c)
+            if c.text.split_whitespace().any(|w| matches!(w.to_ascii_uppercase().as_str(), "M2" | "M02" | "M30")))
+    }
+
+    /// Writes the held barriers after the segment, which ends `end`.
+    fn release(&mut self, end: End, out: &mut Output<'_>) {
+        self.flush(end, out);
+        for b in std::mem::take(&mut self.held) {
+            self.pass_on(b, out);
         }
     }
 
@@ -965,6 +988,17 @@ impl Pass for OrderPaths {
     }
 
     fn run(&mut self, block: Block, out: &mut Output<'_>) {
+        if !self.held.is_empty() {
+            if Self::program_end(&block) {
+                self.release(End::Free, out);
+                return self.pass_on(block, out);
+            }
+            if !Self::position_bound(&block) {
+                self.held.push(block);
+                return;
+            }
+            self.release(End::Fixed, out);
+        }
         match self.state {
             State::Passing => {
                 let ends = matches!(block.kind, BlockKind::Motion(_));
@@ -1048,14 +1082,11 @@ impl Pass for OrderPaths {
                         self.seg.arrive = Some((self.seg.blocks.len(), self.pos));
                     }
                 }
-                _ => {
-                    let end = if Self::position_bound(&block) {
-                        End::Fixed
-                    } else {
-                        End::Free
-                    };
-                    self.barrier(block, end, out);
-                }
+                _ if Self::program_end(&block) => self.barrier(block, End::Free, out),
+                _ if Self::position_bound(&block) => self.barrier(block, End::Fixed, out),
+                // Where the segment may end is decided by what follows.
+                _ if !self.seg.groups.is_empty() => self.held.push(block),
+                _ => self.barrier(block, End::Free, out),
             },
         }
     }
@@ -1066,7 +1097,7 @@ impl Pass for OrderPaths {
             self.close_group(first);
             self.flush(End::Pinned, out);
         } else {
-            self.flush(End::Free, out);
+            self.release(End::Free, out);
         }
         if self.groups == 0 {
             out.diag(Diagnostic::note(
