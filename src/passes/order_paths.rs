@@ -451,7 +451,7 @@ impl OrderPaths {
         let planned = problem.cost(&order);
         self.groups += seg.groups.len();
         self.before += seg.travel;
-        if !(planned < seg.travel - EPS) {
+        if planned >= seg.travel - EPS {
             // Not shorter: the input as it came.
             self.after += seg.travel;
             self.kept += 1;
@@ -693,7 +693,7 @@ impl Problem {
     }
     /// Endpoint `e` (2g = start, 2g+1 = end).
     fn point(&self, e: usize) -> Point2<f64> {
-        if e % 2 == 0 {
+        if e.is_multiple_of(2) {
             self.starts[e / 2]
         } else {
             self.ends[e / 2]
@@ -746,7 +746,7 @@ impl Problem {
             rank[e] = r;
         }
         let mut lists = Vec::with_capacity(m);
-        for e in 0..m {
+        for (e, &r) in rank.iter().enumerate() {
             let p = self.point(e);
             let mut best: Vec<(f64, usize)> = Vec::with_capacity(k + 1);
             let consider = |c: usize, best: &mut Vec<(f64, usize)>| {
@@ -761,7 +761,6 @@ impl Problem {
                 best.insert(at, (d, c));
                 best.truncate(k);
             };
-            let r = rank[e];
             // Leftwards and rightwards while the X gap can still beat the k-th best.
             for &c in by_x[..r].iter().rev() {
                 let dx = p.x - self.point(c).x;
@@ -790,8 +789,9 @@ impl Problem {
         let mut order = Vec::with_capacity(n);
         let mut at = self.origin;
         let mut from: Option<usize> = None;
-        let usable =
-            |e: usize, done: &[bool]| !done[e / 2] && (e % 2 == 0 || self.flippable[e / 2]);
+        let usable = |e: usize, done: &[bool]| {
+            !done[e / 2] && (e.is_multiple_of(2) || self.flippable[e / 2])
+        };
         // Every group is taken, including the last one of the list (seed bug 1).
         for _ in 0..n {
             let listed = from.and_then(|e| near[e].iter().copied().find(|&c| usable(c, &done)));
