@@ -3,9 +3,9 @@
 //! The seed 001 HPGL2NC converter cut the figures of an EAGLE plot nearest-first
 //! ("nearest-figure path ordering"). This pass does the same on any IR, and then improves
 //! the order: a cut group is picked nearest-first from where the tool is, then 2-opt
-//! (reversing a run of groups) and Or-opt (moving one group elsewhere, possibly reversed)
-//! moves are applied while they shorten the travel, within a bounded number of sweeps over
-//! neighbour lists. A note reports the travel before and after. The pass **never
+//! (reversing a run of groups that may all be cut backwards) and Or-opt (moving one group
+//! elsewhere, possibly reversed) moves are applied while they shorten the travel, within
+//! a bounded number of sweeps over neighbour lists. A note reports the travel before and after. The pass **never
 //! lengthens the travel**: when the optimised order is not shorter than the input's, the
 //! segment is written exactly as it came in.
 //!
