@@ -15,6 +15,7 @@ pub mod limits;
 pub mod linearize_arcs;
 pub mod mirror;
 pub mod normalize;
+pub mod order_paths;
 pub mod polar_ik;
 pub mod stats;
 pub mod transform;
@@ -123,6 +124,7 @@ pub const REGISTRY: &[PassInfo] = &[
     backlash::INFO,
     expand_subprograms::INFO,
     mirror::INFO,
+    order_paths::INFO,
     transform::INFO,
 ];
 
