@@ -30,7 +30,7 @@ enum Command {
     Passes,
     /// List the built-in presets.
     Presets,
-    /// Draw a compiled program: joint values or speeds over time (SVG).
+    /// Draw a compiled program (SVG): joint values or speeds over time, or the tool path.
     Plot(PlotArgs),
     /// Report time (motion-time model), lengths, extruded amount, bounding boxes and
     /// counts of the compiled program as a table on standard output.
@@ -103,12 +103,17 @@ struct PlotArgs {
     #[command(flatten)]
     pipeline: PipelineArgs,
     /// Plot X, Y, Z and the rotary axes over time (the default).
-    #[arg(long, conflicts_with = "speed")]
+    #[arg(long, conflicts_with_all = ["speed", "toolpath"])]
     joints: bool,
     /// Plot the tool's linear speed (for a polar machine the tip's Cartesian speed), the
     /// axes' speeds and the screw speed (`M3 S`) over time, with the motion-time model.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "toolpath")]
     speed: bool,
+    /// Plot the tool path from above: cuts solid, rapids dashed, plunges as rings; the tip
+    /// in the part frame (forward kinematics of the emitted joints on a 5-axis machine,
+    /// r cos θ / r sin θ on a polar one).
+    #[arg(long)]
+    toolpath: bool,
     /// Speed assumed for rapids, mm/min.
     #[arg(long, default_value_t = 3000.0)]
     rapid_feed: f64,
@@ -351,6 +356,11 @@ fn plot(args: &PlotArgs) -> ExitCode {
         );
         let summary = pipeline.run_into(source, input, &mut plot, &mut |d| printer.print(d));
         (summary, plot.svg())
+    } else if args.toolpath {
+        let frame = ncpost::plot::toolpath::Frame::for_preset(pipeline.preset());
+        let mut plot = ncpost::plot::toolpath::ToolpathPlot::new(frame);
+        let summary = pipeline.run_into(source, input, &mut plot, &mut |d| printer.print(d));
+        (summary, plot.svg())
     } else {
         let mut plot = ncpost::plot::JointPlot::new(args.rapid_feed);
         let summary = pipeline.run_into(source, input, &mut plot, &mut |d| printer.print(d));
@@ -587,6 +597,15 @@ fn write_atomically(
     body: impl FnOnce(&mut File, &mut Printer) -> Result<Summary, Diagnostic>,
     printer: &mut Printer,
 ) -> ExitCode {
+    // What the name stands for: a device or a pipe (`-o /dev/null`, a FIFO) is written
+    // in place, since renaming a file over it would replace it; a symbolic link is
+    // followed, so the link stays and its target is replaced.
+    let path = match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() => return write_in_place(path, body, printer),
+        Ok(_) => path.canonicalize().unwrap_or_else(|_| path.to_path_buf()),
+        Err(_) => path.to_path_buf(),
+    };
+    let path = path.as_path();
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
@@ -633,6 +652,22 @@ fn write_atomically(
     }
     // On failure the temporary file is removed when `tmp` drops; `path` is untouched.
     code
+}
+
+/// Writes to a device or pipe as the output comes (nothing to rename; a failed run may
+/// have written part of its output there, as with standard output).
+fn write_in_place(
+    path: &Path,
+    body: impl FnOnce(&mut File, &mut Printer) -> Result<Summary, Diagnostic>,
+    printer: &mut Printer,
+) -> ExitCode {
+    match std::fs::OpenOptions::new().write(true).open(path) {
+        Ok(mut file) => {
+            let result = body(&mut file, printer);
+            finish(result, printer)
+        }
+        Err(e) => usage(format!("cannot open {} for writing: {e}", path.display())),
+    }
 }
 
 fn plural(n: u64) -> &'static str {

@@ -989,3 +989,51 @@ fn plot_joints_writes_an_svg_of_each_axis() {
     assert_ne!(out.status.code(), Some(0));
     assert!(!dir.path().join("other.svg").exists());
 }
+
+#[cfg(unix)]
+#[test]
+fn output_to_a_pipe_is_written_in_place_and_stays_a_pipe() {
+    use std::os::unix::fs::FileTypeExt;
+    let dir = dir_with(&[("good.gcode", GOOD)]);
+    let fifo = dir.path().join("out.fifo");
+    let made = Command::new("mkfifo").arg(&fifo).status().expect("mkfifo");
+    assert!(made.success());
+    // Renaming a temporary file over the name would replace the pipe (as it would
+    // replace /dev/null): the output must go through it instead.
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::read_to_string(fifo).expect("read the pipe"))
+    };
+    let out = run_in(dir.path(), &["run", "good.gcode", "-o", "out.fifo"], None);
+    assert_exit(&out, 0);
+    // Checked before joining: had the pipe been replaced, the reader would wait forever.
+    let kind = std::fs::symlink_metadata(&fifo)
+        .expect("still there")
+        .file_type();
+    assert!(kind.is_fifo(), "the pipe was replaced by a {kind:?}");
+    let text = reader.join().expect("reader");
+    assert!(text.contains("G1 X20"), "{text}");
+    assert!(temp_files(dir.path()).is_empty());
+}
+
+#[cfg(unix)]
+#[test]
+fn output_through_a_symlink_replaces_the_target_and_keeps_the_link() {
+    let dir = dir_with(&[("good.gcode", GOOD)]);
+    let target = dir.path().join("real.gcode");
+    std::fs::write(&target, "old\n").unwrap();
+    let link = dir.path().join("link.gcode");
+    std::os::unix::fs::symlink(&target, &link).unwrap();
+    let out = run_in(dir.path(), &["run", "good.gcode", "-o", "link.gcode"], None);
+    assert_exit(&out, 0);
+    assert!(
+        std::fs::symlink_metadata(&link)
+            .unwrap()
+            .file_type()
+            .is_symlink(),
+        "the link was replaced by a file"
+    );
+    let written = std::fs::read_to_string(&target).unwrap();
+    assert!(written.contains("G21"), "{written}");
+    assert!(temp_files(dir.path()).is_empty());
+}

@@ -1,4 +1,4 @@
-//! Plots of a compiled program over time, as SVG: joint values ([`JointPlot`]) and speeds ([`SpeedPlot`]).
+//! Plots of a compiled program as SVG: joint values ([`JointPlot`]) and speeds ([`SpeedPlot`]) over time, and the tool path ([`toolpath::ToolpathPlot`]).
 //!
 //! Both are [`Backend`]s: put one at the end of a pipeline. [`JointPlot`] records every
 //! joint motion with a constant-velocity time (the NIST feed rule, inverse time for G93
@@ -6,6 +6,8 @@
 //! shared time axis. [`SpeedPlot`] times the program with the motion-time model
 //! ([`crate::motion`]) and draws the tool's linear speed, the axes' speeds and the screw
 //! speed.
+
+pub mod toolpath;
 
 use std::fmt::Write;
 
