@@ -53,7 +53,7 @@ echo "input: $CL ($N GOTO points, $SIZE bytes)"
 echo
 echo "| program | wall s | peak RSS MB |"
 echo "|---|---|---|"
-measure ncpost target/release/ncpost run --quiet --preset emoc-x5 "$CL" -o "$DATA/five_axis_${N}.gcode"
+measure ncpost "${CARGO_TARGET_DIR:-target}/release/ncpost" run --quiet --preset emoc-x5 "$CL" -o "$DATA/five_axis_${N}.gcode"
 measure seed_post python3 scripts/seed_post.py "$CL"
 echo
 awk -v a="$(cat "$DATA/seed_post.wall")" -v b="$(cat "$DATA/ncpost.wall")" \

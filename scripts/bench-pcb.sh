@@ -91,8 +91,8 @@ SIZE=$(stat -c %s "$IN")
 echo "input: $IN ($COPIES copies, $SIZE bytes), map: $MAP"
 OUT_ID="$DATA/pcb_identity.ngc"
 OUT_HM="$DATA/pcb_heightmap.ngc"
-measure identity target/release/ncpost run --quiet "$IN" -o "$OUT_ID"
-measure heightmap target/release/ncpost run --quiet --pass linearize-arcs \
+measure identity "${CARGO_TARGET_DIR:-target}/release/ncpost" run --quiet "$IN" -o "$OUT_ID"
+measure heightmap "${CARGO_TARGET_DIR:-target}/release/ncpost" run --quiet --pass linearize-arcs \
   --pass "heightmap:map=$MAP" "$IN" -o "$OUT_HM"
 echo
 echo "| pipeline | wall s | input MB/s | output MB | peak RSS MB |"
