@@ -1078,3 +1078,39 @@ fn snapshot_diagnostics() {
     }
     insta::assert_snapshot!(text);
 }
+
+#[test]
+fn limits_sums_up_long_runs_of_blocks_past_a_limit() {
+    let m = machine("emoc-x5");
+    // 25 blocks below Z's minimum (-60), the worst at line 112; 3 above X's maximum.
+    let mut blocks = Vec::new();
+    for i in 0..25u32 {
+        let z = if i == 12 { -63.5 } else { -61.0 };
+        blocks.push(joint_block(100 + i, MotionKind::Linear, &[(Axis::Z, z)]));
+    }
+    for i in 0..3u32 {
+        blocks.push(joint_block(
+            200 + i,
+            MotionKind::Linear,
+            &[(Axis::X, 190.0)],
+        ));
+    }
+    let (out, diags) = run("limits", "", Some(&m), blocks.clone());
+    assert_eq!(out.len(), 28);
+    assert!(diags.iter().all(|d| d.code == "limits::range"));
+    // 10 Z errors one by one, 3 X errors, and one summary of Z's 25.
+    assert_eq!(diags.len(), 14, "{diags:#?}");
+    let summary = diags.last().expect("summary");
+    assert!(
+        summary
+            .message
+            .contains("on 25 blocks in all (lines 100..124)")
+            && summary.message.contains("by 3.5000 mm at worst"),
+        "{}",
+        summary.message
+    );
+    assert_eq!(summary.location.as_ref().map(|l| l.line), Some(112));
+    // max_reported = 0: every block.
+    let (_, diags) = run("limits", "max_reported = 0", Some(&m), blocks);
+    assert_eq!(diags.len(), 28);
+}
