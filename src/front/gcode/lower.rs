@@ -226,6 +226,9 @@ pub(crate) struct Lowerer {
     items: Vec<Item>,
     /// Token buffer reused for every line (empty between lines).
     toks: Vec<Spanned<'static>>,
+    /// Lines of the commonest shape go through [`Lowerer::fast_move`] (off only in the
+    /// tests that compare it with the general path).
+    fast_lane: bool,
     /// A non-blank line has been seen.
     saw_text: bool,
     /// A block of the main program has been seen.
@@ -288,6 +291,7 @@ impl Lowerer {
             in_subprogram: false,
             items: Vec::with_capacity(32),
             toks: Vec::with_capacity(32),
+            fast_lane: true,
             saw_text: false,
             program_started: false,
             calls_inline: false,
@@ -479,6 +483,13 @@ impl Lowerer {
             if contains_m99(text) {
                 self.in_subprogram = false;
             }
+            return;
+        }
+        if self.fast_lane
+            && starts_visible
+            && self.oword_stack.is_empty()
+            && self.fast_move(text, span, out, diags)
+        {
             return;
         }
 
@@ -1547,6 +1558,93 @@ impl Lowerer {
         true
     }
 
+    /// The commonest lines of a file (`G1 X93.189 Y98.172 E.1642 ; note`: upper-case G,
+    /// X, Y, Z, E and F words with plain decimals, separated by blanks, and at most a `;`
+    /// comment) read in one scan of the bytes and lowered by [`Lowerer::plain_move`],
+    /// without the lexer, the line grammar and the word collection. `false` (nothing
+    /// done) for any other line, which then takes the general path; for the lines it
+    /// takes, the blocks and diagnostics are those of the general path (tested on every
+    /// corpus line and on generated ones).
+    fn fast_move(
+        &mut self,
+        text: &str,
+        span: Span,
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) -> bool {
+        let b = text.as_bytes();
+        let mut words: Small<Word<'_>> = Small::new();
+        let mut comment = None;
+        let mut i = 0;
+        while i < b.len() {
+            match b[i] {
+                b' ' | b'\t' | b'\r' => i += 1,
+                b';' => {
+                    comment = Some(i);
+                    break;
+                }
+                c @ (b'G' | b'X' | b'Y' | b'Z' | b'E' | b'F') => {
+                    // A word needs a blank (or the start) before it: `X1E5` is two
+                    // words the general path checks.
+                    if i > 0 && !matches!(b[i - 1], b' ' | b'\t') {
+                        return false;
+                    }
+                    let start = i;
+                    let mut j = i + 1;
+                    if j < b.len() && matches!(b[j], b'+' | b'-') {
+                        j += 1;
+                    }
+                    let int_start = j;
+                    while j < b.len() && b[j].is_ascii_digit() {
+                        j += 1;
+                    }
+                    let int_digits = j - int_start;
+                    let mut frac_digits = 0;
+                    if j < b.len() && b[j] == b'.' {
+                        j += 1;
+                        let f = j;
+                        while j < b.len() && b[j].is_ascii_digit() {
+                            j += 1;
+                        }
+                        frac_digits = j - f;
+                    }
+                    if int_digits + frac_digits == 0
+                        || (j < b.len() && !matches!(b[j], b' ' | b'\t' | b'\r' | b';'))
+                    {
+                        return false;
+                    }
+                    let w = &text[start..j];
+                    let Some(value) = parse_decimal(&w[1..]) else {
+                        return false;
+                    };
+                    if !value.is_finite() || value.abs() > 1e12 {
+                        return false;
+                    }
+                    words.push(Word {
+                        letter: c as char,
+                        value,
+                        start,
+                        end: j,
+                        text: w,
+                    });
+                    i = j;
+                }
+                _ => return false,
+            }
+        }
+        if words.is_empty() {
+            return false;
+        }
+        let mut comments = Vec::new();
+        if let Some(at) = comment {
+            comments.push(Comment {
+                text: text[at + 1..].to_string(),
+                style: CommentStyle::Semicolon,
+            });
+        }
+        self.plain_move(text, span, &words, &mut comments, out, diags)
+    }
+
     /// Applies a G92-family code to the offsets and returns the values G92 declares.
     fn apply_offset(
         &mut self,
@@ -2355,6 +2453,113 @@ fn describe(t: Tok<'_>) -> String {
 #[cfg(test)]
 mod tests {
     use super::{Spanned, number_slice, parse_code, parse_code_general, parse_decimal, recycle};
+    use crate::ir::Span;
+
+    /// Lowers `text` line by line, with or without the fast lane: blocks and diagnostics.
+    fn lower_all(text: &str, fast: bool) -> String {
+        let mut low = super::Lowerer::new(super::Options::default());
+        low.fast_lane = fast;
+        let (mut out, mut diags) = (Vec::new(), Vec::new());
+        let mut offset = 0u64;
+        for (k, raw) in text.split('\n').enumerate() {
+            let line = raw.strip_suffix('\r').unwrap_or(raw);
+            let span = Span {
+                offset,
+                len: line.len() as u32,
+                line: k as u32 + 1,
+            };
+            offset += raw.len() as u64 + 1;
+            low.line(line, span, &mut out, &mut diags);
+        }
+        low.finish(&mut diags);
+        format!("{out:#?}\n{diags:#?}")
+    }
+
+    #[test]
+    fn fast_lane_equals_the_general_path_on_the_corpus() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gcode");
+        let mut files: Vec<_> = std::fs::read_dir(&dir)
+            .expect("corpus")
+            .map(|e| e.expect("entry").path())
+            .collect();
+        files.sort();
+        let (mut fast_lines, mut candidates) = (0usize, 0usize);
+        for path in files {
+            let bytes = std::fs::read(&path).expect("read");
+            let text = String::from_utf8_lossy(&bytes);
+            assert_eq!(
+                lower_all(&text, true),
+                lower_all(&text, false),
+                "{}",
+                path.display()
+            );
+            // The fast lane does take the commonest lines.
+            let mut low = super::Lowerer::new(super::Options::default());
+            let (mut out, mut diags) = (Vec::new(), Vec::new());
+            for line in text.lines().filter(|l| l.starts_with("G1 X")) {
+                candidates += 1;
+                if low.fast_move(line, Span::default(), &mut out, &mut diags) {
+                    fast_lines += 1;
+                }
+            }
+        }
+        assert!(
+            fast_lines * 10 > candidates * 9,
+            "{fast_lines} of {candidates} `G1 X` lines took the fast lane"
+        );
+    }
+
+    #[test]
+    fn fast_lane_edge_cases() {
+        for text in [
+            "G1 X1 Y2 E.5 F1200 ; move",
+            "G1 X1.;c\nG1 X.5\nG1 X+.5 Y-1.\nG0 X1E5\nG1 X1 E5",
+            "G1 X1e5\nG1 X1 e5\nG1 x1\nG1 X1 X2\nG1 X-\nG1 X\nG1 X1 *12",
+            "G91\nG1 X1 Y1\nG90\nG20\nG1 X1 F10\nG21\nG93\nG1 X1 F2",
+            "G1 X1e400\nG1 X9999999999999\nG1 F-5 X1\nG1 F0 X1\nG2 X1 Y1 I1\nG1 X1 (c)",
+            "M83\nG1 E1\nG1 E-1\nM82\nG92 E0\nG1 X1 E1\nG1  X2\t Y3  \r",
+            "G0\nG1\nG1 Z\nG4 X1\nG1 G0 X1\nG1 X1 N5\nN5 G1 X1\n/G1 X1\nG1 X1 %",
+        ] {
+            assert_eq!(lower_all(text, true), lower_all(text, false), "{text:?}");
+        }
+    }
+
+    proptest::proptest! {
+        /// Generated programs of words the fast lane reads and near misses: the same
+        /// blocks and diagnostics either way.
+        #[test]
+        fn fast_lane_equals_the_general_path(
+            lines in proptest::collection::vec(
+                (
+                    proptest::collection::vec(
+                        (
+                            proptest::sample::select(vec!["G", "X", "Y", "Z", "E", "F", "x", "e", "M", "N", "I", "J", "R"]),
+                            proptest::sample::select(vec![
+                                "0", "1", "2", "3", "4", "17", "20", "21", "82", "83", "90", "91", "92", "93", "94",
+                                "1.5", "-2.25", ".5", "-.5", "+3", "1.", "-", "", "12.3456", "1e5", "99999999999999",
+                            ]),
+                            proptest::sample::select(vec![" ", "  ", "\t", ""]),
+                        ),
+                        0..6,
+                    ),
+                    proptest::sample::select(vec!["", " ; note", ";x", " (c)", " *5"]),
+                ),
+                1..12,
+            )
+        ) {
+            let mut text = String::new();
+            for (words, tail) in &lines {
+                for (letter, number, sep) in words {
+                    text.push_str(letter);
+                    text.push_str(number);
+                    text.push_str(sep);
+                }
+                text.push_str(tail);
+                text.push('\n');
+            }
+            proptest::prop_assert_eq!(lower_all(&text, true), lower_all(&text, false), "{:?}", text);
+        }
+    }
 
     #[test]
     fn arc_without_centre_is_an_error_from_an_unknown_start() {
