@@ -1591,11 +1591,18 @@ impl Lowerer {
                     }
                     let start = i;
                     let mut j = i + 1;
+                    let negative = j < b.len() && b[j] == b'-';
                     if j < b.len() && matches!(b[j], b'+' | b'-') {
                         j += 1;
                     }
+                    // The digits are read once, into the mantissa parse_decimal would
+                    // build (the same bits for the same text).
+                    let mut mantissa: u64 = 0;
                     let int_start = j;
                     while j < b.len() && b[j].is_ascii_digit() {
+                        mantissa = mantissa
+                            .wrapping_mul(10)
+                            .wrapping_add(u64::from(b[j] - b'0'));
                         j += 1;
                     }
                     let int_digits = j - int_start;
@@ -1604,6 +1611,9 @@ impl Lowerer {
                         j += 1;
                         let f = j;
                         while j < b.len() && b[j].is_ascii_digit() {
+                            mantissa = mantissa
+                                .wrapping_mul(10)
+                                .wrapping_add(u64::from(b[j] - b'0'));
                             j += 1;
                         }
                         frac_digits = j - f;
@@ -1614,8 +1624,14 @@ impl Lowerer {
                         return false;
                     }
                     let w = &text[start..j];
-                    let Some(value) = parse_decimal(&w[1..]) else {
-                        return false;
+                    let value = if int_digits + frac_digits <= 15 {
+                        let v = mantissa as f64 / POW10[frac_digits];
+                        if negative { -v } else { v }
+                    } else {
+                        match parse_decimal(&w[1..]) {
+                            Some(v) => v,
+                            None => return false,
+                        }
                     };
                     if !value.is_finite() || value.abs() > 1e12 {
                         return false;
@@ -2147,13 +2163,15 @@ fn plane_offset_letters(plane: Plane) -> (char, char, char) {
     }
 }
 
+/// Powers of ten a mantissa of at most 15 digits is divided by, exactly.
+const POW10: [f64; 16] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
+];
+
 /// Parses a G-code decimal (`-1.25`, `.5`, `3.`): exactly as `str::parse::<f64>`, with a
 /// fast path for up to 15 digits, where the digits form an exact integer and dividing by
 /// an exact power of ten rounds once, correctly (Clinger's fast path).
 pub fn parse_decimal(s: &str) -> Option<f64> {
-    const POW10: [f64; 16] = [
-        1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
-    ];
     let bytes = s.as_bytes();
     let (negative, digits) = match bytes.first() {
         Some(b'-') => (true, &bytes[1..]),
@@ -2537,6 +2555,8 @@ mod tests {
                             proptest::sample::select(vec![
                                 "0", "1", "2", "3", "4", "17", "20", "21", "82", "83", "90", "91", "92", "93", "94",
                                 "1.5", "-2.25", ".5", "-.5", "+3", "1.", "-", "", "12.3456", "1e5", "99999999999999",
+                                "-0", "-0.0", "123456789012345", "1234567890.12345", "0.1234567890123456",
+                                "12345678901234567", "0.30000000000000004", "007.50",
                             ]),
                             proptest::sample::select(vec![" ", "  ", "\t", ""]),
                         ),
