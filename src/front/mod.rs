@@ -55,6 +55,8 @@ pub struct LineReader<R> {
     max_len: usize,
     offset: u64,
     line: u32,
+    /// Bytes of the last line, read in place from `inner`'s buffer, still to consume.
+    pending: usize,
 }
 
 impl<R: BufRead> LineReader<R> {
@@ -66,6 +68,7 @@ impl<R: BufRead> LineReader<R> {
             max_len,
             offset: 0,
             line: 0,
+            pending: 0,
         }
     }
 
@@ -76,6 +79,53 @@ impl<R: BufRead> LineReader<R> {
 
     /// The next line and its span, or `None` at the end of input.
     pub fn next_line(&mut self) -> io::Result<Option<(RawLine<'_>, Span)>> {
+        if self.pending > 0 {
+            self.inner.consume(self.pending);
+            self.pending = 0;
+        }
+        // Most lines lie whole in the reader's buffer: they are read in place (consumed
+        // at the next call) instead of being copied out.
+        let found = loop {
+            match self.inner.fill_buf() {
+                Ok(chunk) => {
+                    break memchr::memchr(b'\n', chunk).map(|i| {
+                        let content = if i > 0 && chunk[i - 1] == b'\r' {
+                            i - 1
+                        } else {
+                            i
+                        };
+                        (i + 1, content)
+                    });
+                }
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            }
+        };
+        if let Some((taken, content)) = found
+            && content <= self.max_len
+        {
+            // The buffer still holds the line (nothing was consumed): no read happens.
+            let chunk = self.inner.fill_buf()?;
+            let bytes = &chunk[..content];
+            self.pending = taken;
+            self.line += 1;
+            let span = Span {
+                offset: self.offset,
+                len: content as u32,
+                line: self.line,
+            };
+            self.offset += taken as u64;
+            return Ok(Some(match std::str::from_utf8(bytes) {
+                Ok(text) => (RawLine::Text(text), span),
+                Err(e) => (
+                    RawLine::NotUtf8 {
+                        valid_up_to: e.valid_up_to(),
+                        lossy: String::from_utf8_lossy(bytes).into_owned(),
+                    },
+                    span,
+                ),
+            }));
+        }
         self.buf.clear();
         let start = self.offset;
         let mut too_long = false;
@@ -156,5 +206,81 @@ impl<R: BufRead> LineReader<R> {
                 span,
             ),
         }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{LineReader, RawLine};
+    use std::io::BufReader;
+
+    /// Every line of `bytes` as (kind, text or lossy text, offset, len, line), read
+    /// through a buffer of `capacity` bytes.
+    fn read_all(bytes: &[u8], capacity: usize, max_len: usize) -> Vec<(u8, String, u64, u32, u32)> {
+        let mut r = LineReader::new(BufReader::with_capacity(capacity, bytes), max_len);
+        let mut out = Vec::new();
+        while let Some((raw, span)) = r.next_line().expect("read") {
+            let (kind, text) = match raw {
+                RawLine::Text(t) => (0, t.to_string()),
+                RawLine::TooLong => (1, String::new()),
+                RawLine::NotUtf8 { valid_up_to, lossy } => (2, format!("{valid_up_to}:{lossy}")),
+            };
+            out.push((kind, text, span.offset, span.len, span.line));
+        }
+        assert_eq!(r.bytes_read(), bytes.len() as u64);
+        out
+    }
+
+    /// The same, computed directly from the bytes.
+    fn reference(bytes: &[u8], max_len: usize) -> Vec<(u8, String, u64, u32, u32)> {
+        let mut out = Vec::new();
+        let mut offset = 0u64;
+        let mut rest = bytes;
+        let mut line = 0;
+        while !rest.is_empty() {
+            line += 1;
+            let (raw, next) = match rest.iter().position(|&b| b == b'\n') {
+                Some(i) => (&rest[..i], &rest[i + 1..]),
+                None => (rest, &rest[rest.len()..]),
+            };
+            let consumed = (rest.len() - next.len()) as u64;
+            let had_newline = consumed as usize > raw.len();
+            let content = if had_newline && raw.last() == Some(&b'\r') {
+                &raw[..raw.len() - 1]
+            } else {
+                raw
+            };
+            let entry = if content.len() > max_len {
+                (1, String::new())
+            } else {
+                match std::str::from_utf8(content) {
+                    Ok(t) => (0, t.to_string()),
+                    Err(e) => (
+                        2,
+                        format!("{}:{}", e.valid_up_to(), String::from_utf8_lossy(content)),
+                    ),
+                }
+            };
+            out.push((entry.0, entry.1, offset, content.len() as u32, line));
+            offset += consumed;
+            rest = next;
+        }
+        out
+    }
+
+    proptest::proptest! {
+        /// Lines read in place and lines copied across buffer refills give the same lines,
+        /// spans and kinds as splitting the bytes at `\n`.
+        #[test]
+        fn lines_are_the_same_whatever_the_buffer(
+            bytes in proptest::collection::vec(
+                proptest::sample::select(vec![b'a', b'G', b'1', b' ', b'\n', b'\r', 0xff, 0xc3, 0xa9]),
+                0..200,
+            ),
+            capacity in proptest::sample::select(vec![1usize, 2, 3, 7, 16, 64, 1 << 16]),
+            max_len in proptest::sample::select(vec![0usize, 1, 5, 40, 1 << 20]),
+        ) {
+            proptest::prop_assert_eq!(read_all(&bytes, capacity, max_len), reference(&bytes, max_len));
+        }
     }
 }
