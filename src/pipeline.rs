@@ -541,11 +541,14 @@ impl Part<'_> {
         }
         for i in from..self.passes.len() {
             let pass = &mut self.passes[i];
-            next.clear();
-            for b in cur.drain(..) {
-                pass.run(b, &mut Output::new(next, diags));
+            // A pass that only reads the blocks looks at them where they lie.
+            if !pass.observe(cur, diags) {
+                next.clear();
+                for b in cur.drain(..) {
+                    pass.run(b, &mut Output::new(next, diags));
+                }
+                std::mem::swap(cur, next);
             }
-            std::mem::swap(cur, next);
             let at = self.first + i + 1;
             if self.dump_at == Some(at) && (self.last || i + 1 < self.passes.len()) {
                 self.dump_blocks(cur);

@@ -91,12 +91,9 @@ impl Limits {
     }
 }
 
-impl Pass for Limits {
-    fn name(&self) -> &'static str {
-        "limits"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl Limits {
+    /// Checks one block's joints against the ranges.
+    fn check(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
         if let BlockKind::Motion(m) = &block.kind
             && let Target::Joints(j) = &m.target
         {
@@ -154,7 +151,7 @@ impl Pass for Limits {
                 if cap > 0 && o.count > cap {
                     continue;
                 }
-                out.diag(
+                diags.push(
                     Diagnostic::error(
                         "limits::range",
                         format!(
@@ -167,7 +164,24 @@ impl Pass for Limits {
                 );
             }
         }
+    }
+}
+
+impl Pass for Limits {
+    fn name(&self) -> &'static str {
+        "limits"
+    }
+
+    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+        self.check(&block, out.diags);
         out.push(block);
+    }
+
+    fn observe(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) -> bool {
+        for block in blocks {
+            self.check(block, diags);
+        }
+        true
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {

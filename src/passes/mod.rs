@@ -87,6 +87,12 @@ pub trait Pass: Send {
     fn name(&self) -> &'static str;
     /// Consumes one block and pushes zero or more blocks.
     fn run(&mut self, block: Block, out: &mut Output<'_>);
+    /// A pass that only reads blocks (a check) may look at a whole batch where it lies
+    /// and return `true`: the blocks then go on as they are, without being moved through
+    /// [`Pass::run`]. The default returns `false`, and the pipeline calls `run` on each.
+    fn observe(&mut self, _blocks: &[Block], _diags: &mut Vec<Diagnostic>) -> bool {
+        false
+    }
     /// Called once after the last block.
     fn finish(&mut self, _out: &mut Output<'_>) {}
 }

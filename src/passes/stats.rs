@@ -369,6 +369,13 @@ impl Pass for Stats {
         out.push(block);
     }
 
+    fn observe(&mut self, blocks: &[Block], _diags: &mut Vec<Diagnostic>) -> bool {
+        for block in blocks {
+            self.count(block);
+        }
+        true
+    }
+
     fn finish(&mut self, out: &mut Output<'_>) {
         self.end();
         out.diag(Diagnostic::note("stats::report", self.report()));

@@ -34,8 +34,22 @@ impl Pass for Verify {
     }
 
     fn run(&mut self, block: Block, out: &mut Output<'_>) {
-        if let Err(e) = self.verifier.check(&block) {
-            out.diag(
+        self.check(&block, out.diags);
+        out.push(block);
+    }
+
+    fn observe(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) -> bool {
+        for block in blocks {
+            self.check(block, diags);
+        }
+        true
+    }
+}
+
+impl Verify {
+    fn check(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
+        if let Err(e) = self.verifier.check(block) {
+            diags.push(
                 Diagnostic::error("ir::invariant", format!("IR invariant broken: {e}"))
                     .at_span(block.span)
                     .with_help(
@@ -43,6 +57,5 @@ impl Pass for Verify {
                     ),
             );
         }
-        out.push(block);
     }
 }
