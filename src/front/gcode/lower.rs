@@ -1560,8 +1560,9 @@ impl Lowerer {
 
     /// The commonest lines of a file (`G1 X93.189 Y98.172 E.1642 ; note`: upper-case G,
     /// X, Y, Z, E and F words with plain decimals, separated by blanks, and at most a `;`
-    /// comment) read in one scan of the bytes and lowered by [`Lowerer::plain_move`],
-    /// without the lexer, the line grammar and the word collection. `false` (nothing
+    /// comment; or a `;` comment alone) read in one scan of the bytes and lowered by
+    /// [`Lowerer::plain_move`], without the lexer, the line grammar and the word
+    /// collection. `false` (nothing
     /// done) for any other line, which then takes the general path; for the lines it
     /// takes, the blocks and diagnostics are those of the general path (tested on every
     /// corpus line and on generated ones).
@@ -1648,15 +1649,22 @@ impl Lowerer {
                 _ => return false,
             }
         }
-        if words.is_empty() {
-            return false;
-        }
         let mut comments = Vec::new();
         if let Some(at) = comment {
             comments.push(Comment {
                 text: text[at + 1..].to_string(),
                 style: CommentStyle::Semicolon,
             });
+        }
+        if words.is_empty() {
+            // A comment line (`;TYPE:Perimeter`): what the general path makes of it.
+            if comments.is_empty() {
+                return false;
+            }
+            let mut block = Block::new(span, BlockKind::Comment);
+            block.comments = comments;
+            out.push(block);
+            return true;
         }
         self.plain_move(text, span, &words, &mut comments, out, diags)
     }
