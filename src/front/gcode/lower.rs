@@ -444,7 +444,10 @@ impl Lowerer {
         self.saw_text = true;
         // Control characters never belong in G-code: most likely a binary file.
         // The quick scan (vectorised) finds no byte below 0x20 in almost every line.
-        let suspicious = text.bytes().any(|b| b < 0x20 || b == 0x7f);
+        // Without an early exit the scan vectorises (most lines have no such byte).
+        let suspicious = text
+            .bytes()
+            .fold(false, |seen, b| seen | (b < 0x20) | (b == 0x7f));
         if suspicious
             && let Some(at) = text
                 .bytes()
