@@ -7,7 +7,7 @@
 # For each SIZE_MB it times, BENCH_REPEAT times (default 3), whole processes under
 # /usr/bin/time -f '%e %U %S %M' and prints the best wall, best user+sys CPU and the
 # largest peak RSS of:
-#   - ncpost identity pipeline: target/release/ncpost run --emit gcode -o OUT FILE
+#   - ncpost identity pipeline: $CARGO_TARGET_DIR/release/ncpost run --emit gcode -o OUT FILE
 #   - the gcode crate 0.7 parse-only example (skipped with PEERS=0)
 #   - wc -l (a floor)
 # on target/bench-data/peers_<SIZE_MB>MB.gcode, the same file bench-peers.sh makes (this
@@ -31,8 +31,8 @@ CG_MB=${CALLGRIND_MB:-5}
 SOURCE=${BENCH_SOURCE:-../shared/corpus/gcode/gcodenom_mini_cube_a_prusaslicer.gcode}
 DATA=target/bench-data
 OUT=$DATA/cpu-out.gcode
-NCPOST=target/release/ncpost
-PEER=target/release/examples/peer_gcode_crate
+NCPOST=${CARGO_TARGET_DIR:-target}/release/ncpost
+PEER=${CARGO_TARGET_DIR:-target}/release/examples/peer_gcode_crate
 mkdir -p "$DATA"
 sizes=("$@")
 ((${#sizes[@]})) || sizes=(100)
