@@ -225,21 +225,28 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
         Command::Passes => {
+            // The names in one column, as wide as the longest.
+            let w = passes::REGISTRY
+                .iter()
+                .map(|p| p.name.len())
+                .max()
+                .unwrap_or(0);
             for p in passes::REGISTRY {
-                println!("{:<13} {}", p.name, p.summary);
+                print_out(format_args!("{:<w$} {}\n", p.name, p.summary));
                 let defaults = (p.defaults)();
                 for line in defaults.lines() {
-                    println!("{:<13}   {line}", "");
+                    print_out(format_args!("{:<w$}   {line}\n", ""));
                 }
             }
             ExitCode::SUCCESS
         }
         Command::Presets => {
+            let w = BUILTIN.iter().map(|(n, _)| n.len()).max().unwrap_or(0);
             for (name, _) in BUILTIN {
                 let desc = Preset::builtin(name)
                     .map(|p| p.description)
                     .unwrap_or_default();
-                println!("{name:<12} {desc}");
+                print_out(format_args!("{name:<w$} {desc}\n"));
             }
             ExitCode::SUCCESS
         }
@@ -289,7 +296,7 @@ fn probe_program(args: &ProbeArgs) -> ExitCode {
     };
     match args.output.as_deref().filter(|o| o.as_os_str() != "-") {
         None => {
-            print!("{text}");
+            print_out(format_args!("{text}"));
             ExitCode::SUCCESS
         }
         Some(path) => write_atomically(
@@ -327,7 +334,7 @@ fn config_g(args: &PresetArgs) -> ExitCode {
     if let Err(e) = machine.check() {
         return usage(format!("[machine]: {e}"));
     }
-    print!("{}", machine.config_g());
+    print_out(format_args!("{}", machine.config_g()));
     ExitCode::SUCCESS
 }
 
@@ -371,7 +378,7 @@ fn plot(args: &PlotArgs) -> ExitCode {
     }
     match args.output.as_deref().filter(|o| o.as_os_str() != "-") {
         None => {
-            print!("{svg}");
+            print_out(format_args!("{svg}"));
             finish(Ok(summary), &mut printer)
         }
         Some(path) => write_atomically(
@@ -439,7 +446,7 @@ fn stats(args: &StatsArgs) -> ExitCode {
     }
     let summary = pipeline.run_into(source, input, &mut collector, &mut |d| printer.print(d));
     if summary.errors == 0 {
-        print!("{}", collector.table());
+        print_out(format_args!("{}", collector.table()));
     }
     finish(Ok(summary), &mut printer)
 }
@@ -469,6 +476,19 @@ fn open_input(path: &Path) -> Result<(Box<dyn io::BufRead>, String), ExitCode> {
             path.display().to_string(),
         )),
         Err(e) => Err(usage(format!("cannot open {}: {e}", path.display()))),
+    }
+}
+
+/// Writes to standard output; when the reader has gone (`ncpost passes | head`) the
+/// program ends quietly instead of panicking as `print!` would.
+fn print_out(args: std::fmt::Arguments<'_>) {
+    let mut out = io::stdout().lock();
+    if let Err(e) = out.write_fmt(args).and_then(|_| out.flush()) {
+        if e.kind() == io::ErrorKind::BrokenPipe {
+            std::process::exit(0);
+        }
+        eprintln!("error: cannot write to standard output: {e}");
+        std::process::exit(i32::from(EXIT_INPUT));
     }
 }
 

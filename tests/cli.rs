@@ -1037,3 +1037,28 @@ fn output_through_a_symlink_replaces_the_target_and_keeps_the_link() {
     assert!(written.contains("G21"), "{written}");
     assert!(temp_files(dir.path()).is_empty());
 }
+
+#[test]
+fn a_reader_that_goes_away_ends_the_program_quietly() {
+    use std::io::Read;
+    // A large SVG on standard output, read 100 bytes of, then the pipe is closed
+    // (`ncpost plot ... | head -c 100`).
+    let input = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/corpus/gcode/gcodenom_mini_cube_a_prusaslicer.gcode");
+    let mut child = ncpost()
+        .args(["plot", "--toolpath", "-q"])
+        .arg(&input)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = child.stdout.take().unwrap();
+    let mut head = [0u8; 100];
+    stdout.read_exact(&mut head).unwrap();
+    assert!(head.starts_with(b"<svg"));
+    drop(stdout);
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_eq!(out.status.code(), Some(0), "{stderr}");
+}
