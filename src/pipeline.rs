@@ -294,21 +294,33 @@ impl Pipeline {
                         Emit::Grbl => Box::new(back::grbl::Writer::new(&mut out, &preset.grbl)),
                         Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
                     };
+                    let mut failed = false;
                     let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
-                        written += blocks.len() as u64;
-                        back::write_each(backend.as_mut(), blocks, diags);
+                        if !failed {
+                            written += blocks.len() as u64;
+                            failed = back::write_each(backend.as_mut(), blocks, diags).is_err();
+                        }
                         blocks.clear();
                     };
                     let mut next = Vec::with_capacity(BATCH);
-                    for mut batch in rx {
+                    for mut batch in rx.iter() {
                         back_part.flow(0, &mut batch, &mut next, &mut diags, &mut deliver);
+                        if diags.iter().any(|d| d.code == "io::write") {
+                            // Dropping the receiver stops the frontend at its next batch.
+                            break;
+                        }
                     }
-                    back_part.finish(&mut diags, &mut deliver);
-                    if let Err(d) = backend.finish() {
-                        diags.push(d);
+                    drop(rx);
+                    if !diags.iter().any(|d| d.code == "io::write") {
+                        back_part.finish(&mut diags, &mut deliver);
+                        if let Err(d) = backend.finish() {
+                            diags.push(d);
+                        }
                     }
                 }
-                if let Err(e) = out.flush() {
+                if !diags.iter().any(|d| d.code == "io::write")
+                    && let Err(e) = out.flush()
+                {
                     diags.push(back::io_error(e));
                 }
                 (written, diags)
@@ -423,7 +435,7 @@ impl Pipeline {
         let mut written = 0u64;
         let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
             written += blocks.len() as u64;
-            back::write_each(back, blocks, diags);
+            let _ = back::write_each(back, blocks, diags);
             blocks.clear();
         };
         let mut cur = Vec::new();

@@ -1062,3 +1062,30 @@ fn a_reader_that_goes_away_ends_the_program_quietly() {
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(out.status.code(), Some(0), "{stderr}");
 }
+
+#[test]
+fn output_into_a_closed_pipe_is_one_error_not_one_per_block() {
+    use std::io::Read;
+    let input = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/corpus/gcode/gcodenom_mini_cube_a_prusaslicer.gcode");
+    let mut child = ncpost()
+        .args(["run", "-q", "-o", "-"])
+        .arg(&input)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = child.stdout.take().unwrap();
+    let mut head = [0u8; 100];
+    stdout.read_exact(&mut head).unwrap();
+    drop(stdout);
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        stderr.matches("cannot write the output").count(),
+        1,
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert_exit(&out, 1);
+}

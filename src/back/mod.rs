@@ -1073,7 +1073,7 @@ use writer_backend;
 /// ```
 pub fn write_blocks(backend: &mut dyn Backend, blocks: &[Block]) -> Vec<Diagnostic> {
     let mut diags = Vec::new();
-    write_each(backend, blocks, &mut diags);
+    let _ = write_each(backend, blocks, &mut diags);
     if let Err(d) = backend.finish() {
         diags.push(d);
     }
@@ -1081,12 +1081,23 @@ pub fn write_blocks(backend: &mut dyn Backend, blocks: &[Block]) -> Vec<Diagnost
 }
 
 /// Writes each block (without finishing), adding the backend's diagnostics to `diags`.
-pub(crate) fn write_each(backend: &mut dyn Backend, blocks: &[Block], diags: &mut Vec<Diagnostic>) {
+pub(crate) fn write_each(
+    backend: &mut dyn Backend,
+    blocks: &[Block],
+    diags: &mut Vec<Diagnostic>,
+) -> Result<(), ()> {
     for b in blocks {
         if let Err(d) = backend.write_block(b, diags) {
+            // The output cannot be written (a full disk, a closed pipe): nothing after
+            // this block can be either, so writing stops with one error.
+            let io = d.code == "io::write";
             diags.push(d);
+            if io {
+                return Err(());
+            }
         }
     }
+    Ok(())
 }
 
 /// Like [`write_blocks`], but `Err` with every diagnostic when any is an error.
