@@ -1114,12 +1114,14 @@ impl Pass for OrderPaths {
         } else {
             0.0
         };
+        let counted =
+            |n: usize, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
         let mut msg = format!(
-            "order-paths: travel {:.1} mm -> {:.1} mm ({pct:.1} % shorter), {} cut groups in {} segments ({} reordered, {} kept as written), {} reversed",
+            "order-paths: travel {:.1} mm -> {:.1} mm ({pct:.1} % shorter), {} in {} ({} reordered, {} kept as written), {} reversed",
             self.before,
             self.after,
-            self.groups,
-            self.reordered + self.kept,
+            counted(self.groups, "cut group", "cut groups"),
+            counted(self.reordered + self.kept, "segment", "segments"),
             self.reordered,
             self.kept,
             self.reversed
