@@ -115,16 +115,7 @@ impl<R: BufRead> LineReader<R> {
                 line: self.line,
             };
             self.offset += taken as u64;
-            return Ok(Some(match std::str::from_utf8(bytes) {
-                Ok(text) => (RawLine::Text(text), span),
-                Err(e) => (
-                    RawLine::NotUtf8 {
-                        valid_up_to: e.valid_up_to(),
-                        lossy: String::from_utf8_lossy(bytes).into_owned(),
-                    },
-                    span,
-                ),
-            }));
+            return Ok(Some((decode(bytes), span)));
         }
         self.buf.clear();
         let start = self.offset;
@@ -196,16 +187,18 @@ impl<R: BufRead> LineReader<R> {
             len: end as u32,
             line: self.line,
         };
-        Ok(Some(match std::str::from_utf8(bytes) {
-            Ok(text) => (RawLine::Text(text), span),
-            Err(e) => (
-                RawLine::NotUtf8 {
-                    valid_up_to: e.valid_up_to(),
-                    lossy: String::from_utf8_lossy(bytes).into_owned(),
-                },
-                span,
-            ),
-        }))
+        Ok(Some((decode(bytes), span)))
+    }
+}
+
+/// A line's bytes as text, or why they are not.
+fn decode(bytes: &[u8]) -> RawLine<'_> {
+    match std::str::from_utf8(bytes) {
+        Ok(text) => RawLine::Text(text),
+        Err(e) => RawLine::NotUtf8 {
+            valid_up_to: e.valid_up_to(),
+            lossy: String::from_utf8_lossy(bytes).into_owned(),
+        },
     }
 }
 

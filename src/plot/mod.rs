@@ -195,13 +195,7 @@ impl Backend for JointPlot {
     ) -> Result<(), Diagnostic> {
         match &block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(j) = &m.target else {
-                    return Err(Diagnostic::error(
-                        "plot::pose",
-                        "a tool pose reached the plot; run the `ik` pass first (use a preset with a machine)",
-                    )
-                    .at_span(block.span));
-                };
+                let (j, next) = joints_after(&self.last, block, m)?;
                 let rate = match m.kind {
                     MotionKind::Rapid => self.rapid_feed,
                     _ => m.feed.rate.unwrap_or(self.rapid_feed),
@@ -212,10 +206,6 @@ impl Backend for JointPlot {
                     m.feed.mode
                 };
                 self.seconds += 60.0 * Self::minutes(&self.last, j, mode, rate);
-                let mut next = self.last;
-                for a in j.known.iter() {
-                    next.set(a, j.values[a.index()]);
-                }
                 self.axes = self.axes.union(j.known);
                 self.last = next;
                 self.record(next);
@@ -231,6 +221,27 @@ impl Backend for JointPlot {
     fn finish(&mut self) -> Result<(), Diagnostic> {
         Ok(())
     }
+}
+
+/// A motion's joint target and the position after it (`last` with the target's known
+/// axes set); a tool pose (CL input without `ik`) is the error `plot::pose`.
+fn joints_after<'b>(
+    last: &Joints,
+    block: &Block,
+    m: &'b crate::ir::Motion,
+) -> Result<(&'b Joints, Joints), Diagnostic> {
+    let Target::Joints(j) = &m.target else {
+        return Err(Diagnostic::error(
+            "plot::pose",
+            "a tool pose reached the plot; run the `ik` pass first (use a preset with a machine)",
+        )
+        .at_span(block.span));
+    };
+    let mut next = *last;
+    for a in j.known.iter() {
+        next.set(a, j.values[a.index()]);
+    }
+    Ok((j, next))
 }
 
 /// What a timed item of the speed plot stands for.
@@ -628,17 +639,7 @@ impl Backend for SpeedPlot {
     ) -> Result<(), Diagnostic> {
         match &block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(j) = &m.target else {
-                    return Err(Diagnostic::error(
-                        "plot::pose",
-                        "a tool pose reached the plot; run the `ik` pass first (use a preset with a machine)",
-                    )
-                    .at_span(block.span));
-                };
-                let mut next = self.last;
-                for a in j.known.iter() {
-                    next.set(a, j.values[a.index()]);
-                }
+                let (_, mut next) = joints_after(&self.last, block, m)?;
                 if let Some(seg) = self.planner.model().motion(&self.last, m) {
                     for a in Axis::ALL {
                         if seg.delta[a.index()] != 0.0 && a != Axis::E {

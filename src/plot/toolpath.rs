@@ -27,7 +27,7 @@ use nalgebra::Point3;
 
 use crate::back::Backend;
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
+use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind};
 use crate::machine::Machine;
 use crate::motion::arc::ArcPath;
 
@@ -420,17 +420,7 @@ impl Backend for ToolpathPlot {
     ) -> Result<(), Diagnostic> {
         match &block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(j) = &m.target else {
-                    return Err(Diagnostic::error(
-                        "plot::pose",
-                        "a tool pose reached the plot; run the `ik` pass first (use a preset with a machine)",
-                    )
-                    .at_span(block.span));
-                };
-                let mut next = self.last;
-                for a in j.known.iter() {
-                    next.set(a, j.values[a.index()]);
-                }
+                let (_, mut next) = super::joints_after(&self.last, block, m)?;
                 if m.machine_frame {
                     // G53: the axes it names are unknown in the program frame afterwards.
                     next.forget(m.written);
