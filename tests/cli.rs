@@ -1038,26 +1038,30 @@ fn output_through_a_symlink_replaces_the_target_and_keeps_the_link() {
     assert!(temp_files(dir.path()).is_empty());
 }
 
-#[test]
-fn a_reader_that_goes_away_ends_the_program_quietly() {
+/// Runs ncpost with `args` on the corpus cube (output well over a pipe's buffer), reads
+/// 100 bytes of its standard output and closes the pipe (`ncpost ... | head -c 100`).
+fn into_closed_pipe(args: &[&str]) -> (Vec<u8>, Output) {
     use std::io::Read;
-    // A large SVG on standard output, read 100 bytes of, then the pipe is closed
-    // (`ncpost plot ... | head -c 100`).
     let input = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/corpus/gcode/gcodenom_mini_cube_a_prusaslicer.gcode");
     let mut child = ncpost()
-        .args(["plot", "--toolpath", "-q"])
+        .args(args)
         .arg(&input)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
     let mut stdout = child.stdout.take().unwrap();
-    let mut head = [0u8; 100];
+    let mut head = vec![0u8; 100];
     stdout.read_exact(&mut head).unwrap();
-    assert!(head.starts_with(b"<svg"));
     drop(stdout);
-    let out = child.wait_with_output().unwrap();
+    (head, child.wait_with_output().unwrap())
+}
+
+#[test]
+fn a_reader_that_goes_away_ends_the_program_quietly() {
+    let (head, out) = into_closed_pipe(&["plot", "--toolpath", "-q"]);
+    assert!(head.starts_with(b"<svg"));
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!stderr.contains("panicked"), "{stderr}");
     assert_eq!(out.status.code(), Some(0), "{stderr}");
@@ -1065,21 +1069,7 @@ fn a_reader_that_goes_away_ends_the_program_quietly() {
 
 #[test]
 fn output_into_a_closed_pipe_is_one_error_not_one_per_block() {
-    use std::io::Read;
-    let input = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/corpus/gcode/gcodenom_mini_cube_a_prusaslicer.gcode");
-    let mut child = ncpost()
-        .args(["run", "-q", "-o", "-"])
-        .arg(&input)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let mut stdout = child.stdout.take().unwrap();
-    let mut head = [0u8; 100];
-    stdout.read_exact(&mut head).unwrap();
-    drop(stdout);
-    let out = child.wait_with_output().unwrap();
+    let (_, out) = into_closed_pipe(&["run", "-q", "-o", "-"]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(
         stderr.matches("cannot write the output").count(),
