@@ -33,9 +33,6 @@ const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 /// assert_eq!(s, "0.005");
 /// ```
 pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
-    // Digits are written backwards into a stack buffer: no allocation, no float formatting.
-    let mut buf = [0u8; 32];
-    let mut i = buf.len();
     let mut u = units.unsigned_abs();
     let mut frac = decimals.min(9) as usize;
     if trim {
@@ -44,33 +41,36 @@ pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
             frac -= 1;
         }
     }
-    for _ in 0..frac {
-        i -= 1;
-        buf[i] = b'0' + (u % 10) as u8;
-        u /= 10;
-    }
-    if frac > 0 {
-        i -= 1;
-        buf[i] = b'.';
-    }
-    loop {
-        i -= 1;
-        buf[i] = b'0' + (u % 10) as u8;
-        u /= 10;
-        if u == 0 {
-            break;
-        }
-    }
+    let scale = POW10_U64[frac];
     if units < 0 {
-        i -= 1;
-        buf[i] = b'-';
+        out.push('-');
     }
-    // ASCII bytes pushed as chars: cheaper than validating the buffer as UTF-8.
-    out.reserve(buf.len() - i);
-    for &b in &buf[i..] {
-        out.push(char::from(b));
+    // Whole part and fraction as integers, printed by itoa (no float formatting, no
+    // per-character pushes).
+    let mut digits = itoa::Buffer::new();
+    out.push_str(digits.format(u / scale));
+    if frac > 0 {
+        let f = digits.format(u % scale);
+        out.push('.');
+        for _ in f.len()..frac {
+            out.push('0');
+        }
+        out.push_str(f);
     }
 }
+
+const POW10_U64: [u64; 10] = [
+    1,
+    10,
+    100,
+    1_000,
+    10_000,
+    100_000,
+    1_000_000,
+    10_000_000,
+    100_000_000,
+    1_000_000_000,
+];
 
 /// Prints `value` at `decimals` places (see [`write_units`]); `false` if it does not fit.
 pub fn write_fixed(out: &mut String, value: f64, decimals: u8, trim: bool) -> bool {
@@ -103,6 +103,32 @@ mod tests {
         assert_eq!(fmt(123.4567, 3, true), "123.457");
         assert_eq!(fmt(2400.0, 0, true), "2400");
         assert_eq!(fmt(0.00001, 5, true), "0.00001");
+    }
+
+    proptest::proptest! {
+        /// Every unit count at every precision, trimmed or not: what `format!` prints for
+        /// the same decimal.
+        #[test]
+        fn units_print_as_std_prints_them(units in -9_000_000_000_000_000i64..9_000_000_000_000_000, decimals in 0u8..10, trim: bool) {
+            let mut ours = String::new();
+            write_units(&mut ours, units, decimals, trim);
+            let d = decimals as u32;
+            let scale = 10u128.pow(d);
+            let abs = units.unsigned_abs() as u128;
+            let mut std = format!("{}", abs / scale);
+            if d > 0 {
+                let frac = format!("{:0width$}", abs % scale, width = d as usize);
+                let frac = if trim { frac.trim_end_matches('0').to_string() } else { frac };
+                if !frac.is_empty() {
+                    std.push('.');
+                    std.push_str(&frac);
+                }
+            }
+            if units < 0 {
+                std.insert(0, '-');
+            }
+            proptest::prop_assert_eq!(ours, std);
+        }
     }
 
     #[test]
