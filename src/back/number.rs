@@ -10,12 +10,22 @@
 /// assert_eq!(to_units(-0.0004, 3), Some(0));
 /// ```
 pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
-    let scaled = (value * POW10[decimals.min(9) as usize]).round();
-    if scaled.is_finite() && scaled.abs() < 9e15 {
-        Some(scaled as i64)
-    } else {
-        None
+    let x = value * POW10[decimals.min(9) as usize];
+    if !x.is_finite() || x.abs() >= 9.1e15 {
+        return None;
     }
+    // `f64::round` (half away from zero) without the libm call: below 2^53 the
+    // truncation is exact and so is the fraction left over.
+    let whole = x as i64;
+    let fraction = x - whole as f64;
+    let rounded = if fraction >= 0.5 {
+        whole + 1
+    } else if fraction <= -0.5 {
+        whole - 1
+    } else {
+        whole
+    };
+    (rounded.unsigned_abs() < 9_000_000_000_000_000).then_some(rounded)
 }
 
 const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
@@ -105,7 +115,50 @@ mod tests {
         assert_eq!(fmt(0.00001, 5, true), "0.00001");
     }
 
+    /// The rounding `to_units` stands for.
+    fn to_units_by_round(value: f64, decimals: u8) -> Option<i64> {
+        let scaled = (value * POW10[decimals.min(9) as usize]).round();
+        (scaled.is_finite() && scaled.abs() < 9e15).then_some(scaled as i64)
+    }
+
+    #[test]
+    fn to_units_rounds_halves_away_from_zero_and_refuses_what_does_not_fit() {
+        for (v, d) in [
+            (0.5, 0),
+            (-0.5, 0),
+            (1.5, 0),
+            (2.5, 0),
+            (-2.5, 0),
+            (0.49999999999999994, 0),
+            (1.0005, 3),
+            (-1.0005, 3),
+            (8.999999999999999e15, 0),
+            (9e15, 0),
+            (-9e15, 0),
+            (9.05e15, 0),
+            (f64::NAN, 3),
+            (f64::INFINITY, 3),
+            (4503599627370495.5, 0),
+            (-0.0, 3),
+        ] {
+            assert_eq!(to_units(v, d), to_units_by_round(v, d), "{v:e} at {d}");
+        }
+    }
+
     proptest::proptest! {
+        /// The same as rounding with `f64::round`, for any finite value and precision.
+        #[test]
+        fn to_units_equals_f64_round(value in proptest::num::f64::ANY, decimals in 0u8..10) {
+            proptest::prop_assert_eq!(to_units(value, decimals), to_units_by_round(value, decimals));
+        }
+
+        /// Halves and near-halves at every precision.
+        #[test]
+        fn to_units_equals_f64_round_near_halves(k in -1_000_000_000i64..1_000_000_000, d in 0u8..6, nudge in proptest::sample::select(vec![-1e-9, 0.0, 1e-9])) {
+            let value = (k as f64 + 0.5) / 10f64.powi(d as i32) + nudge;
+            proptest::prop_assert_eq!(to_units(value, d), to_units_by_round(value, d));
+        }
+
         /// Every unit count at every precision, trimmed or not: what `format!` prints for
         /// the same decimal.
         #[test]
