@@ -287,6 +287,9 @@ impl Pipeline {
                 let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
                 let mut diags = Vec::new();
                 let mut written = 0u64;
+                // Set by the first write error (a full disk, a closed pipe): nothing more
+                // is written, and the frontend stops at its next batch.
+                let failed = std::cell::Cell::new(false);
                 {
                     let mut backend: Box<dyn Backend + '_> = match preset.emit {
                         Emit::Rrf => Box::new(back::rrf::Writer::new(&mut out, &preset.rrf)),
@@ -294,31 +297,31 @@ impl Pipeline {
                         Emit::Grbl => Box::new(back::grbl::Writer::new(&mut out, &preset.grbl)),
                         Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
                     };
-                    let mut failed = false;
                     let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
-                        if !failed {
+                        if !failed.get() {
                             written += blocks.len() as u64;
-                            failed = back::write_each(backend.as_mut(), blocks, diags).is_err();
+                            let ok = back::write_each(backend.as_mut(), blocks, diags);
+                            failed.set(ok.is_err());
                         }
                         blocks.clear();
                     };
                     let mut next = Vec::with_capacity(BATCH);
                     for mut batch in rx.iter() {
                         back_part.flow(0, &mut batch, &mut next, &mut diags, &mut deliver);
-                        if diags.iter().any(|d| d.code == "io::write") {
-                            // Dropping the receiver stops the frontend at its next batch.
+                        if failed.get() {
                             break;
                         }
                     }
+                    // A closed channel stops the frontend.
                     drop(rx);
-                    if !diags.iter().any(|d| d.code == "io::write") {
+                    if !failed.get() {
                         back_part.finish(&mut diags, &mut deliver);
                         if let Err(d) = backend.finish() {
                             diags.push(d);
                         }
                     }
                 }
-                if !diags.iter().any(|d| d.code == "io::write")
+                if !failed.get()
                     && let Err(e) = out.flush()
                 {
                     diags.push(back::io_error(e));
@@ -385,7 +388,7 @@ impl Pipeline {
         summary.blocks_out = blocks_out;
         let mut io_error = None;
         for d in back_diags {
-            if d.code == "io::write" && io_error.is_none() {
+            if back::is_io_error(&d) && io_error.is_none() {
                 summary.errors += 1;
                 io_error = Some(d);
             } else {

@@ -1026,7 +1026,15 @@ fn too_large(letter: char, value: f64, block: &Block) -> Diagnostic {
 }
 
 pub(crate) fn io_error(e: std::io::Error) -> Diagnostic {
-    Diagnostic::error("io::write", format!("cannot write the output: {e}"))
+    Diagnostic::error(IO_WRITE, format!("cannot write the output: {e}"))
+}
+
+/// The code of [`io_error`].
+const IO_WRITE: &str = "io::write";
+
+/// Whether `d` says the output could not be written.
+pub(crate) fn is_io_error(d: &Diagnostic) -> bool {
+    d.code == IO_WRITE
 }
 
 impl<W: Write> Backend for Emitter<W> {
@@ -1090,7 +1098,7 @@ pub(crate) fn write_each(
         if let Err(d) = backend.write_block(b, diags) {
             // The output cannot be written (a full disk, a closed pipe): nothing after
             // this block can be either, so writing stops with one error.
-            let io = d.code == "io::write";
+            let io = is_io_error(&d);
             diags.push(d);
             if io {
                 return Err(());
