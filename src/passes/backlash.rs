@@ -362,10 +362,7 @@ impl Pass for Backlash {
 
     fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
         match &mut block.kind {
-            BlockKind::Motion(m) if m.machine_frame => {
-                self.reset(m.written);
-                self.pos.forget(m.written);
-            }
+            BlockKind::Motion(m) if m.machine_frame => self.reset(m.written),
             BlockKind::Motion(m) => {
                 let Target::Joints(to) = m.target else {
                     self.error(out, || {
@@ -417,23 +414,14 @@ impl Pass for Backlash {
                         o.declared.values[a.index()] += s.offset;
                     }
                 }
-                for a in o.declared.known.iter() {
-                    if self.pos.get(a).is_none() {
-                        self.pos
-                            .set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
-                    }
-                }
             }
-            BlockKind::Command(c) => {
-                self.reset(c.clobbers);
-                self.pos.forget(c.clobbers);
-            }
-            BlockKind::Verbatim(v) => {
-                self.reset(v.clobbers);
-                self.pos.forget(v.clobbers);
-            }
+            BlockKind::Command(c) => self.reset(c.clobbers),
+            BlockKind::Verbatim(v) => self.reset(v.clobbers),
             _ => {}
         }
+        // The programmed position, as every pass keeps it (the adjusted G92 values only
+        // change axes whose position was known, which it leaves alone).
+        super::linearize_arcs::track(&mut self.pos, &block);
         out.push(block);
     }
 
