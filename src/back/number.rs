@@ -11,21 +11,21 @@
 /// ```
 pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
     let x = value * POW10[decimals.min(9) as usize];
-    if !x.is_finite() || x.abs() >= 9.1e15 {
+    // From 2^52 on every f64 is whole, so this is the same test as on the rounded value.
+    if !(x.is_finite() && x.abs() < 9e15) {
         return None;
     }
     // `f64::round` (half away from zero) without the libm call: below 2^53 the
     // truncation is exact and so is the fraction left over.
     let whole = x as i64;
     let fraction = x - whole as f64;
-    let rounded = if fraction >= 0.5 {
+    Some(if fraction >= 0.5 {
         whole + 1
     } else if fraction <= -0.5 {
         whole - 1
     } else {
         whole
-    };
-    (rounded.unsigned_abs() < 9_000_000_000_000_000).then_some(rounded)
+    })
 }
 
 const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
@@ -51,7 +51,7 @@ pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
             frac -= 1;
         }
     }
-    let scale = POW10_U64[frac];
+    let scale = 10u64.pow(frac as u32);
     if units < 0 {
         out.push('-');
     }
@@ -68,19 +68,6 @@ pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
         out.push_str(f);
     }
 }
-
-const POW10_U64: [u64; 10] = [
-    1,
-    10,
-    100,
-    1_000,
-    10_000,
-    100_000,
-    1_000_000,
-    10_000_000,
-    100_000_000,
-    1_000_000_000,
-];
 
 /// Prints `value` at `decimals` places (see [`write_units`]); `false` if it does not fit.
 pub fn write_fixed(out: &mut String, value: f64, decimals: u8, trim: bool) -> bool {
