@@ -443,8 +443,8 @@ impl Lowerer {
         }
         self.saw_text = true;
         // Control characters never belong in G-code: most likely a binary file.
-        // The quick scan (vectorised) finds no byte below 0x20 in almost every line.
-        // Without an early exit the scan vectorises (most lines have no such byte).
+        // A quick scan without an early exit (so it vectorises) finds no such byte in
+        // almost every line; only then is the position looked for.
         let suspicious = text
             .bytes()
             .fold(false, |seen, b| seen | (b < 0x20) | (b == 0x7f));
@@ -1565,10 +1565,9 @@ impl Lowerer {
     /// X, Y, Z, E and F words with plain decimals, separated by blanks, and at most a `;`
     /// comment; or a `;` comment alone) read in one scan of the bytes and lowered by
     /// [`Lowerer::plain_move`], without the lexer, the line grammar and the word
-    /// collection. `false` (nothing
-    /// done) for any other line, which then takes the general path; for the lines it
-    /// takes, the blocks and diagnostics are those of the general path (tested on every
-    /// corpus line and on generated ones).
+    /// collection. `false` (nothing done) for any other line, which then takes the
+    /// general path; for the lines it takes, the blocks and diagnostics are those of the
+    /// general path (tested on every corpus line and on generated ones).
     fn fast_move(
         &mut self,
         text: &str,
@@ -1599,8 +1598,8 @@ impl Lowerer {
                     if j < b.len() && matches!(b[j], b'+' | b'-') {
                         j += 1;
                     }
-                    // The digits are read once, into the mantissa parse_decimal would
-                    // build (the same bits for the same text).
+                    // The digits are read once, into the mantissa parse_decimal builds
+                    // (exact_decimal gives both the same bits).
                     let mut mantissa: u64 = 0;
                     let int_start = j;
                     while j < b.len() && b[j].is_ascii_digit() {
@@ -1629,8 +1628,7 @@ impl Lowerer {
                     }
                     let w = &text[start..j];
                     let value = if int_digits + frac_digits <= 15 {
-                        let v = mantissa as f64 / POW10[frac_digits];
-                        if negative { -v } else { v }
+                        exact_decimal(mantissa, frac_digits, negative)
                     } else {
                         match parse_decimal(&w[1..]) {
                             Some(v) => v,
@@ -2216,8 +2214,14 @@ pub fn parse_decimal(s: &str) -> Option<f64> {
     if count > 15 {
         return s.parse().ok();
     }
+    Some(exact_decimal(mantissa, frac, negative))
+}
+
+/// `±mantissa / 10^frac` for a mantissa of at most 15 digits: both are exact in f64, so
+/// the one division rounds correctly (Clinger's fast path), as `str::parse` does.
+fn exact_decimal(mantissa: u64, frac: usize, negative: bool) -> f64 {
     let value = mantissa as f64 / POW10[frac];
-    Some(if negative { -value } else { value })
+    if negative { -value } else { value }
 }
 
 /// An empty token vector of another lifetime, keeping `v`'s allocation (collecting an
