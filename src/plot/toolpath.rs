@@ -296,36 +296,44 @@ impl ToolpathPlot {
     /// most half of [`MAX_POINTS`] are left: vertices that do not change the picture go,
     /// corners stay.
     fn thin(&mut self) {
-        let (lo, hi) = self.runs.iter().flat_map(|r| r.points.iter()).fold(
-            ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]),
-            |(lo, hi), p| {
+        let Some(([x0, y0], [x1, y1])) = self.extent() else {
+            return;
+        };
+        let span = (x1 - x0).max(y1 - y0);
+        if span <= 0.0 {
+            return;
+        }
+        // Never finer than the last time: those vertices are gone already.
+        self.eps = self.eps.max(span / 4000.0);
+        loop {
+            self.points = 0;
+            for run in &mut self.runs {
+                simplify(&mut run.points, self.eps);
+                self.points += run.points.len();
+            }
+            if self.points <= MAX_POINTS / 2 {
+                break;
+            }
+            self.eps *= 2.0;
+        }
+    }
+
+    /// The smallest and largest X and Y of the drawing, if it has a point.
+    fn extent(&self) -> Option<([f64; 2], [f64; 2])> {
+        let mut points = self
+            .runs
+            .iter()
+            .flat_map(|r| r.points.iter())
+            .chain(self.plunges.iter());
+        let first = points.next()?;
+        Some(
+            points.fold(([first.x, first.y], [first.x, first.y]), |(lo, hi), p| {
                 (
                     [lo[0].min(p.x), lo[1].min(p.y)],
                     [hi[0].max(p.x), hi[1].max(p.y)],
                 )
-            },
-        );
-        let span = (hi[0] - lo[0]).max(hi[1] - lo[1]);
-        let mut eps = if span.is_finite() && span > 0.0 {
-            span / 4000.0
-        } else {
-            return;
-        };
-        self.eps = self.eps.max(eps);
-        eps = self.eps;
-        loop {
-            let mut total = 0;
-            for run in &mut self.runs {
-                simplify(&mut run.points, eps);
-                total += run.points.len();
-            }
-            self.points = total;
-            if total <= MAX_POINTS / 2 {
-                break;
-            }
-            eps *= 2.0;
-            self.eps = eps;
-        }
+            }),
+        )
     }
 
     /// The SVG picture: the path from above, X to the right and Y up, to scale.
@@ -333,26 +341,7 @@ impl ToolpathPlot {
         const SIZE: f64 = 900.0;
         const MARGIN: f64 = 40.0;
         const FOOTER: f64 = 50.0;
-        let all = self
-            .runs
-            .iter()
-            .flat_map(|r| r.points.iter())
-            .chain(self.plunges.iter());
-        let (mut x0, mut x1, mut y0, mut y1) = (
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-        );
-        for p in all {
-            x0 = x0.min(p.x);
-            x1 = x1.max(p.x);
-            y0 = y0.min(p.y);
-            y1 = y1.max(p.y);
-        }
-        if !x0.is_finite() {
-            (x0, x1, y0, y1) = (0.0, 1.0, 0.0, 1.0);
-        }
+        let ([x0, y0], [x1, y1]) = self.extent().unwrap_or(([0.0, 0.0], [1.0, 1.0]));
         let span = (x1 - x0).max(y1 - y0).max(1e-9);
         let scale = SIZE / span;
         let (w, h) = ((x1 - x0) * scale, (y1 - y0) * scale);
