@@ -184,6 +184,8 @@ fn every_corpus_hpgl_board_plunges_as_its_gcode_does() {
                 .expect("run");
             String::from_utf8(out).expect("utf-8")
         };
+        // Both counts from a board that does plunge (not two zeros).
+        assert!(!p.plunges().is_empty(), "{}", path.display());
         assert_eq!(
             p.plunges().len(),
             plunges_in_text(&text),

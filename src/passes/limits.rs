@@ -89,9 +89,7 @@ impl Limits {
             overruns: Vec::new(),
         })
     }
-}
 
-impl Limits {
     /// Checks one block's joints against the ranges.
     fn check(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
         if let BlockKind::Motion(m) = &block.kind
