@@ -128,46 +128,20 @@ fi
 declare -a ROWS=() FAILED=()
 declare -A WALL=() MBPS=() RSS=() CMD=() SIZE=()
 
-# timed NAME INPUT CMD...: run CMD REPEAT times under /usr/bin/time.
+# shellcheck source=scripts/bench-lib.sh
+source "$REPO_ROOT/scripts/bench-lib.sh"
+
+# timed NAME INPUT CMD...: best_of with the table's columns; ncpost must write $OUT.
 timed() {
     local name=$1 input=$2
     shift 2
-    local bytes best="" maxrss=0 i t m
-    bytes=$(fsize "$input")
     CMD[$name]="$*"
-    SIZE[$name]=$(awk -v b="$bytes" 'BEGIN { printf "%.1f", b / 1e6 }')
+    SIZE[$name]=$(awk -v b="$(fsize "$input")" 'BEGIN { printf "%.1f", b / 1e6 }')
     ROWS+=("$name")
-    cat "$input" >/dev/null # warm the page cache: every tool reads from RAM
-    for ((i = 1; i <= REPEAT; i++)); do
-        log "run $i/$REPEAT: $name: $*"
-        [[ $name == ncpost ]] && rm -f "$OUT"
-        local t0=$EPOCHREALTIME t1 why=""
-        if ! /usr/bin/time -f '%e %M' -o "$DATA/$name.time" "$@" \
-            >"$DATA/$name.stdout" 2>"$DATA/$name.stderr"; then
-            why="exit status non-zero"
-        elif [[ $name == ncpost && ! -s $OUT ]]; then
-            why="exit 0 but wrote no $OUT"
-        fi
-        t1=$EPOCHREALTIME
-        if [[ -n $why ]]; then
-            log "FAILED: $name: $why (stderr tail below, full in $DATA/$name.stderr)"
-            tail -n 20 "$DATA/$name.stderr" >&2 || true
-            FAILED+=("$name")
-            WALL[$name]=FAILED
-            return 0
-        fi
-        # %e has 10 ms resolution: keep the process's wall time from
-        # EPOCHREALTIME around /usr/bin/time (adds ~1 ms of its fork/exec);
-        # %M (peak RSS, KiB) is the last line of the -o file.
-        read -r _ m < <(tail -n 1 "$DATA/$name.time")
-        t=$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f", b - a }')
-        if [[ -z $best ]] || awk -v a="$t" -v b="$best" 'BEGIN { exit !(a < b) }'; then best=$t; fi
-        ((m > maxrss)) && maxrss=$m
-    done
-    WALL[$name]=$best
-    RSS[$name]=$(awk -v k="$maxrss" 'BEGIN { printf "%.1f", k / 1024 }')
-    MBPS[$name]=$(awk -v b="$bytes" -v s="$best" 'BEGIN { if (s > 0) printf "%.1f", b / 1e6 / s; else print "n/a" }')
-    log "  -> $(head -c 300 "$DATA/$name.stdout" | head -n 1)"
+    local out=""
+    [[ $name == ncpost ]] && out=$OUT
+    best_of "$name" "$input" "$out" "$@"
+    [[ ${WALL[$name]} == FAILED ]] || log "  -> $(head -c 300 "$DATA/$name.stdout" | head -n 1)"
 }
 
 if [[ -x $BIN/ncpost ]]; then

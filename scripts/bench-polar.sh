@@ -88,42 +88,17 @@ cargo build --release --bin ncpost
 declare -a ROWS=() FAILED=()
 declare -A WALL=() MBPS=() RSS=() CMD=() OUTB=()
 
-# timed NAME OUT CMD...: run CMD REPEAT times under /usr/bin/time; CMD writes OUT.
+# shellcheck source=scripts/bench-lib.sh
+source "$REPO_ROOT/scripts/bench-lib.sh"
+
+# timed NAME OUT CMD...: best_of on $FILE; CMD writes OUT.
 timed() {
     local name=$1 out=$2
     shift 2
-    local bytes best="" maxrss=0 i t m
-    bytes=$(fsize "$FILE")
     CMD[$name]="$*"
     ROWS+=("$name")
-    cat "$FILE" >/dev/null # warm the page cache
-    for ((i = 1; i <= REPEAT; i++)); do
-        log "run $i/$REPEAT: $name: $*"
-        rm -f "$out"
-        local t0=$EPOCHREALTIME t1 why=""
-        if ! /usr/bin/time -f '%e %M' -o "$DATA/$name.time" "$@" \
-            >"$DATA/$name.stdout" 2>"$DATA/$name.stderr"; then
-            why="exit status non-zero"
-        elif [[ ! -s $out ]]; then
-            why="exit 0 but wrote no $out"
-        fi
-        t1=$EPOCHREALTIME
-        if [[ -n $why ]]; then
-            log "FAILED: $name: $why (stderr tail below, full in $DATA/$name.stderr)"
-            tail -n 20 "$DATA/$name.stderr" >&2 || true
-            FAILED+=("$name")
-            WALL[$name]=FAILED
-            return 0
-        fi
-        read -r _ m < <(tail -n 1 "$DATA/$name.time")
-        t=$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f", b - a }')
-        if [[ -z $best ]] || awk -v a="$t" -v b="$best" 'BEGIN { exit !(a < b) }'; then best=$t; fi
-        ((m > maxrss)) && maxrss=$m
-    done
-    WALL[$name]=$best
-    OUTB[$name]=$(fsize "$out")
-    RSS[$name]=$(awk -v k="$maxrss" 'BEGIN { printf "%.1f", k / 1024 }')
-    MBPS[$name]=$(awk -v b="$bytes" -v s="$best" 'BEGIN { if (s > 0) printf "%.2f", b / 1e6 / s; else print "n/a" }')
+    best_of "$name" "$FILE" "$out" "$@"
+    [[ ${WALL[$name]} == FAILED ]] || OUTB[$name]=$(fsize "$out")
 }
 
 ID_OUT=$DATA/polar-identity.out.gcode
