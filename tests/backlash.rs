@@ -19,6 +19,8 @@
 //!    rapids), `start = "positive"`, tiny components, homing reset, arcs (error), bad
 //!    options (snapshot), a before/after snapshot with the pcb-mill preset.
 
+mod common;
+
 use std::path::Path;
 
 use ncpost::back::gcode;
@@ -26,7 +28,7 @@ use ncpost::diag::Diagnostic;
 use ncpost::front::gcode::{Options as GOptions, parse_str};
 use ncpost::ir::verify::Verifier;
 use ncpost::ir::{Axis, Block, BlockKind, FeedMode, Joints, Motion, MotionKind, Target};
-use ncpost::passes::{self, Context, Output};
+use ncpost::passes::{self, Context};
 use ncpost::pipeline::Pipeline;
 use ncpost::preset::Preset;
 use proptest::prelude::*;
@@ -49,19 +51,7 @@ fn parse(src: &str) -> Vec<Block> {
 
 /// Runs `blocks` through the passes given as `name:k=v` specs.
 fn run(blocks: Vec<Block>, specs: &[&str]) -> (Vec<Block>, Vec<Diagnostic>) {
-    let mut diags = Vec::new();
-    let mut cur = blocks;
-    for spec in specs {
-        let (name, table) = passes::parse_spec(spec).expect("spec");
-        let mut pass = passes::build(&name, &table, &Context::default()).expect("builds");
-        let mut next = Vec::new();
-        for b in cur {
-            pass.run(b, &mut Output::new(&mut next, &mut diags));
-        }
-        pass.finish(&mut Output::new(&mut next, &mut diags));
-        cur = next;
-    }
-    (cur, diags)
+    common::run_passes(blocks, specs)
 }
 
 fn corpus(name: &str) -> String {

@@ -11,6 +11,8 @@
 //!    (`../shared/corpus/gcode/printrun_pcb_milling_comment.gcode`, kliment/Printrun,
 //!    GPL-3.0, read from the corpus).
 
+mod common;
+
 use std::path::Path;
 
 use nalgebra::Vector3;
@@ -21,7 +23,7 @@ use ncpost::ir::{
     Arc, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind, Plane, Span,
     Target,
 };
-use ncpost::passes::{self, Context, Output};
+use ncpost::passes::{self, Context};
 use proptest::prelude::*;
 
 // ---------------------------------------------------------------------------------------
@@ -30,19 +32,7 @@ use proptest::prelude::*;
 
 /// Runs `blocks` through the passes given as `name:k=v` specs.
 fn run(blocks: Vec<Block>, specs: &[&str]) -> (Vec<Block>, Vec<Diagnostic>) {
-    let mut diags = Vec::new();
-    let mut cur = blocks;
-    for spec in specs {
-        let (name, table) = passes::parse_spec(spec).unwrap();
-        let mut pass = passes::build(&name, &table, &Context::default()).unwrap();
-        let mut next = Vec::new();
-        for b in cur {
-            pass.run(b, &mut Output::new(&mut next, &mut diags));
-        }
-        pass.finish(&mut Output::new(&mut next, &mut diags));
-        cur = next;
-    }
-    (cur, diags)
+    common::run_passes(blocks, specs)
 }
 
 fn span(line: u32) -> Span {

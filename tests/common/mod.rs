@@ -1,0 +1,23 @@
+//! Helpers shared by the integration tests (`mod common;`).
+
+use ncpost::diag::Diagnostic;
+use ncpost::ir::Block;
+use ncpost::passes::{self, Context, Output};
+
+/// Runs `blocks` through the passes given as `name:k=v` specs, each with `finish`, in a
+/// context without a machine.
+pub fn run_passes(blocks: Vec<Block>, specs: &[&str]) -> (Vec<Block>, Vec<Diagnostic>) {
+    let mut diags = Vec::new();
+    let mut cur = blocks;
+    for spec in specs {
+        let (name, table) = passes::parse_spec(spec).expect("spec");
+        let mut pass = passes::build(&name, &table, &Context::default()).expect("builds");
+        let mut next = Vec::new();
+        for b in cur {
+            pass.run(b, &mut Output::new(&mut next, &mut diags));
+        }
+        pass.finish(&mut Output::new(&mut next, &mut diags));
+        cur = next;
+    }
+    (cur, diags)
+}
