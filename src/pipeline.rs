@@ -282,6 +282,9 @@ impl Pipeline {
         let (mut front_part, mut back_part) = self.stages.split(share);
         let progress = &mut self.progress;
         let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Block>>(2);
+        // Emptied batches go back to the frontend: a batch's buffer grows to what the
+        // passes make of it once, not on every batch.
+        let (recycle_tx, recycle) = std::sync::mpsc::sync_channel::<Vec<Block>>(4);
         let (blocks_out, back_diags) = std::thread::scope(|scope| {
             let worker = scope.spawn(move || {
                 let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
@@ -311,6 +314,9 @@ impl Pipeline {
                         if failed.get() {
                             break;
                         }
+                        batch.clear();
+                        // A full or closed channel just drops the buffer.
+                        let _ = recycle_tx.try_send(batch);
                     }
                     // A closed channel stops the frontend.
                     drop(rx);
@@ -334,8 +340,9 @@ impl Pipeline {
             // What the frontend's share of the passes produced, ready to send.
             let mut ready: Vec<Block> = Vec::with_capacity(BATCH);
             let mut open = true;
+            let mut batch = Vec::with_capacity(BATCH);
             loop {
-                let mut batch = Vec::with_capacity(BATCH);
+                batch.clear();
                 front.next_batch(&mut batch, BATCH, &mut diags);
                 let end = batch.is_empty();
                 summary.blocks_in += batch.len() as u64;
@@ -365,7 +372,10 @@ impl Pipeline {
                         p(front.bytes_read());
                     }
                 }
-                let out = std::mem::replace(&mut ready, Vec::with_capacity(BATCH));
+                let empty = recycle
+                    .try_recv()
+                    .unwrap_or_else(|_| Vec::with_capacity(BATCH));
+                let out = std::mem::replace(&mut ready, empty);
                 // A closed channel means the worker stopped; its error comes at join.
                 if !out.is_empty() && open && tx.send(out).is_err() {
                     open = false;

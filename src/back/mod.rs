@@ -706,7 +706,10 @@ impl<W: Write> Emitter<W> {
                 }
             }
         }
-        if let Flavor::Rrf { unsupported, .. } = self.flavor {
+        // Most commands have nothing to remove: they are checked without allocating.
+        if let Flavor::Rrf { unsupported, .. } = self.flavor
+            && rrf::any_unsupported(&cmd.text)
+        {
             let (k, removed) = rrf::split_unsupported(&cmd.text);
             if !removed.is_empty() {
                 let msg = format!("`{removed}` is not supported by RepRapFirmware");

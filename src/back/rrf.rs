@@ -132,6 +132,23 @@ fn unsupported(word: &str) -> bool {
     }
 }
 
+/// Whether a command has a code RepRapFirmware lacks, that is whether
+/// [`split_unsupported`] would remove anything.
+///
+/// ```
+/// # use ncpost::back::rrf::any_unsupported;
+/// assert!(any_unsupported("T1 M06"));
+/// assert!(!any_unsupported("M3 S1000"));
+/// ```
+pub fn any_unsupported(text: &str) -> bool {
+    text.split_whitespace()
+        .any(|w| starts_command(w) && unsupported(w))
+}
+
+fn starts_command(word: &str) -> bool {
+    word.starts_with(['G', 'g', 'M', 'm', 'T', 't'])
+}
+
 /// Splits a command into the words RepRapFirmware runs and the unsupported codes with
 /// their parameters (the words after them up to the next G, M or T word).
 ///
@@ -146,8 +163,7 @@ pub fn split_unsupported(text: &str) -> (String, String) {
     let mut removed = Vec::new();
     let mut dropping = false;
     for w in text.split_whitespace() {
-        let starts_command = w.starts_with(['G', 'g', 'M', 'm', 'T', 't']);
-        if starts_command {
+        if starts_command(w) {
             dropping = unsupported(w);
         }
         if dropping {

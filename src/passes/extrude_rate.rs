@@ -113,6 +113,8 @@
 //! axes when the preset has a polar machine, else X, Y; set `frame = "cartesian"` after
 //! `polar-ik` with `kinematics = "controller"` (XY kept).
 
+use std::fmt::Write as _;
+
 use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
@@ -300,7 +302,8 @@ pub struct ExtrudeRate {
     flow_rpm: f64,
     /// Near-centre cap rate (1/s) of the polar table, 0 without one.
     cap_rate: f64,
-    command: String,
+    /// The rpm command template split at its `{rpm}` placeholders (at least two parts).
+    command: Vec<String>,
     stop_command: Option<String>,
     /// Position as the input has it (E included).
     pos: Joints,
@@ -396,7 +399,7 @@ impl ExtrudeRate {
             gamma,
             flow_rpm,
             cap_rate,
-            command,
+            command: command.split("{rpm}").map(str::to_owned).collect(),
             stop_command: options.stop_command.clone(),
             pos: Joints::default(),
             offsets: [0.0; AXIS_COUNT],
@@ -488,11 +491,27 @@ impl ExtrudeRate {
         {
             return stop.clone();
         }
-        let mut s = String::new();
-        if !write_fixed(&mut s, rpm, self.options.rpm_decimals, true) {
-            s = format!("{rpm}");
+        // The template's parts with the number between them, in one allocation: this
+        // runs for every rate change.
+        let mut text =
+            String::with_capacity(self.command.iter().map(String::len).sum::<usize>() + 16);
+        let mut number: Option<std::ops::Range<usize>> = None;
+        for (i, part) in self.command.iter().enumerate() {
+            if i > 0 {
+                match &number {
+                    Some(r) => text.extend_from_within(r.clone()),
+                    None => {
+                        let start = text.len();
+                        if !write_fixed(&mut text, rpm, self.options.rpm_decimals, true) {
+                            let _ = write!(text, "{rpm}");
+                        }
+                        number = Some(start..text.len());
+                    }
+                }
+            }
+            text.push_str(part);
         }
-        self.command.replace("{rpm}", &s)
+        text
     }
 
     /// Sets the screw to `rpm` (printed), issuing a command when it changes by more than

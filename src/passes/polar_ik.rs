@@ -71,11 +71,13 @@
 
 use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
+use smallvec::SmallVec;
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    Arc, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind, Span, Target,
+    AXIS_COUNT, Arc, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind,
+    Span, Target,
 };
 use crate::machine::FeedRule;
 use crate::machine::polar::{OriginPolicy, Polar};
@@ -162,6 +164,21 @@ pub const INFO: PassInfo = PassInfo {
 /// Closer than this to the centre (mm) a point is at the centre.
 const ORIGIN_EPS: f64 = 1e-9;
 
+/// The axes F covers under the Euclidean and inverse-time rules: all but the extruder.
+const JOINT_AXES: [Axis; AXIS_COUNT - 1] = {
+    let mut axes = [Axis::X; AXIS_COUNT - 1];
+    let mut i = 0;
+    let mut j = 0;
+    while i < AXIS_COUNT {
+        if !matches!(Axis::ALL[i], Axis::E) {
+            axes[j] = Axis::ALL[i];
+            j += 1;
+        }
+        i += 1;
+    }
+    axes
+};
+
 /// `√(8 / (3√3))`: the peak angular acceleration of a line passed at speed v and distance
 /// d is `(3√3 / 8) v² / d²`, so `α ≤ α_max` means `v ≤ 1.2408 d √α_max`.
 pub const ALPHA_FACTOR: f64 = 1.240_806_478_802_799_6;
@@ -246,16 +263,43 @@ pub fn plan(
     max_depth: u32,
     cap_radius: Option<f64>,
 ) -> (Vec<Piece>, bool) {
+    let mut pieces = Vec::new();
+    let deep = plan_into(
+        p0,
+        p1,
+        start,
+        policy,
+        tolerance,
+        max_depth,
+        cap_radius,
+        &mut pieces,
+    );
+    (pieces, deep)
+}
+
+/// [`plan`] into `pieces` (cleared first), so a caller can keep one buffer for every
+/// move; returns whether `max_depth` stopped a bisection.
+#[allow(clippy::too_many_arguments)]
+pub fn plan_into(
+    p0: Vector2<f64>,
+    p1: Vector2<f64>,
+    start: PolarPoint,
+    policy: OriginPolicy,
+    tolerance: f64,
+    max_depth: u32,
+    cap_radius: Option<f64>,
+    pieces: &mut Vec<Piece>,
+) -> bool {
     let d = p1 - p0;
     let len2 = d.norm_squared();
-    let mut pieces = Vec::new();
+    pieces.clear();
     if len2.sqrt() <= ORIGIN_EPS {
         pieces.push(Piece {
             s: 1.0,
             to: start,
             rotate: false,
         });
-        return (pieces, false);
+        return false;
     }
     if p0.norm() <= ORIGIN_EPS {
         // Leaving the centre: radial, so one piece; only θ may have to turn first.
@@ -289,7 +333,7 @@ pub fn plan(
             to: out,
             rotate: false,
         });
-        return (pieces, false);
+        return false;
     }
     if p1.norm() <= ORIGIN_EPS {
         // Arriving at the centre: radial, θ kept.
@@ -301,7 +345,7 @@ pub fn plan(
             },
             rotate: false,
         });
-        return (pieces, false);
+        return false;
     }
     let s_close = -p0.dot(&d) / len2;
     let line_dist = (p0.x * d.y - p0.y * d.x).abs() / len2.sqrt();
@@ -349,7 +393,7 @@ pub fn plan(
                 });
             }
         }
-        return (pieces, false);
+        return false;
     }
     // The general case: the line misses the centre, so it subtends less than 180°.
     let sign = if start.r < 0.0 { -1.0 } else { 1.0 };
@@ -360,7 +404,8 @@ pub fn plan(
             theta: start.theta + angle_between(&p0, &p),
         }
     };
-    let mut splits = vec![0.0];
+    let mut splits: SmallVec<[f64; 4]> = SmallVec::new();
+    splits.push(0.0);
     if let Some(rc) = cap_radius {
         // |p0 + s d|² = rc²
         let b = p0.dot(&d);
@@ -386,12 +431,12 @@ pub fn plan(
             (w[1], b),
             tolerance,
             max_depth,
-            &mut pieces,
+            pieces,
             &mut deep,
         );
         a = b;
     }
-    (pieces, deep)
+    deep
 }
 
 fn refine(
@@ -473,6 +518,8 @@ pub struct PolarIk {
     node: Option<PolarPoint>,
     /// `min(ω_max, 1.24 √α_max)`, 1/s.
     cap_rate: f64,
+    /// The pieces of the move being emitted (kept to reuse its allocation).
+    pieces: Vec<Piece>,
 }
 
 impl PolarIk {
@@ -495,6 +542,7 @@ impl PolarIk {
             options,
             pos: Joints::default(),
             node: None,
+            pieces: Vec::new(),
         })
     }
 
@@ -541,10 +589,7 @@ impl PolarIk {
                     norm(&[Axis::A, Axis::B, Axis::C])
                 }
             }
-            FeedRule::Euclidean | FeedRule::InverseTime => {
-                let axes: Vec<Axis> = Axis::ALL.into_iter().filter(|&x| x != Axis::E).collect();
-                norm(&axes)
-            }
+            FeedRule::Euclidean | FeedRule::InverseTime => norm(&JOINT_AXES),
         }
     }
 
@@ -700,18 +745,22 @@ impl PolarIk {
             });
             return;
         };
-        let points = match m.kind {
-            MotionKind::Arc(arc) => arc_points(&from, &to, &arc, self.options.tolerance),
-            _ => vec![to],
+        let chords;
+        let points: &[Joints] = match m.kind {
+            MotionKind::Arc(arc) => {
+                chords = arc_points(&from, &to, &arc, self.options.tolerance);
+                &chords
+            }
+            _ => std::slice::from_ref(&to),
         };
-        let total = arc_length(&from, &points);
+        let total = arc_length(&from, points);
         let n = points.len();
         let mut start = from;
         let mut node = node;
-        for (i, p) in points.into_iter().enumerate() {
+        for (i, p) in points.iter().enumerate() {
             let last = i + 1 == n;
-            node = self.line(&block, &m, &start, &p, node, total, last, out);
-            start = p;
+            node = self.line(&block, &m, &start, p, node, total, last, out);
+            start = *p;
         }
         self.pos = to;
         self.node = Some(node);
@@ -721,7 +770,7 @@ impl PolarIk {
     /// ends at.
     #[allow(clippy::too_many_arguments)]
     fn line(
-        &self,
+        &mut self,
         block: &Block,
         m: &Motion,
         from: &Joints,
@@ -758,11 +807,21 @@ impl PolarIk {
             Some(v) if self.options.speed_cap && self.cap_rate > 0.0 => Some(v / self.cap_rate),
             _ => None,
         };
-        let (pieces, deep) = if rapid && !self.options.rapids {
-            let (pieces, _) = plan(p0, p1, node, self.policy, f64::INFINITY, 0, None);
-            (pieces, false)
+        let mut pieces = std::mem::take(&mut self.pieces);
+        let deep = if rapid && !self.options.rapids {
+            plan_into(
+                p0,
+                p1,
+                node,
+                self.policy,
+                f64::INFINITY,
+                0,
+                None,
+                &mut pieces,
+            );
+            false
         } else {
-            plan(
+            plan_into(
                 p0,
                 p1,
                 node,
@@ -770,6 +829,7 @@ impl PolarIk {
                 self.options.tolerance,
                 self.options.max_depth,
                 cap_radius,
+                &mut pieces,
             )
         };
         if deep {
@@ -840,6 +900,7 @@ impl PolarIk {
             prev_node = piece.to;
             prev_joints = joints;
         }
+        self.pieces = pieces;
         prev_node
     }
 
