@@ -113,6 +113,7 @@
 //! axes when the preset has a polar machine, else X, Y; set `frame = "cartesian"` after
 //! `polar-ik` with `kinematics = "controller"` (XY kept).
 
+use std::collections::VecDeque;
 use std::fmt::Write as _;
 
 use serde::{Deserialize, Serialize};
@@ -274,6 +275,42 @@ struct Item {
     role: Role,
 }
 
+/// The motion planner with the blocks beside it: the planner keeps only the roles, the
+/// blocks wait here in the same order (it hands items back in the order they came), so
+/// each block is moved in and out once.
+struct Queue {
+    planner: Planner<Role>,
+    blocks: VecDeque<Block>,
+}
+
+impl Queue {
+    fn push_move(&mut self, seg: Segment, item: Item) {
+        self.blocks.push_back(item.block);
+        self.planner.push_move(seg, item.role);
+    }
+
+    fn push_other(&mut self, item: Item) {
+        self.blocks.push_back(item.block);
+        self.planner.push_other(item.role);
+    }
+
+    fn push_stop(&mut self, dwell: f64, item: Item) {
+        self.blocks.push_back(item.block);
+        self.planner.push_stop(dwell, item.role);
+    }
+
+    fn finish(&mut self) {
+        self.planner.finish();
+    }
+
+    /// The next item whose timing is final, and its block.
+    fn pop(&mut self) -> Option<(Timed<Role>, Block)> {
+        let timed = self.planner.pop()?;
+        let block = self.blocks.pop_front()?;
+        Some((timed, block))
+    }
+}
+
 /// A warning counted over the run: the first place and how often.
 #[derive(Default)]
 struct Tally {
@@ -317,7 +354,7 @@ pub struct ExtrudeRate {
     carry: f64,
     /// The printed rate in force (`None`: not known yet).
     held: Option<f64>,
-    planner: Planner<Item>,
+    queue: Queue,
     last_span: Span,
     over_max: Tally,
     under_min: Tally,
@@ -407,7 +444,10 @@ impl ExtrudeRate {
             pending: 0.0,
             carry: 0.0,
             held: None,
-            planner: Planner::new(model),
+            queue: Queue {
+                planner: Planner::new(model),
+                blocks: VecDeque::new(),
+            },
             last_span: Span::default(),
             over_max: Tally::default(),
             under_min: Tally::default(),
@@ -640,7 +680,7 @@ impl ExtrudeRate {
         match &mut block.kind {
             BlockKind::Motion(m) => {
                 let Target::Joints(to) = m.target else {
-                    self.planner.push_other(Item {
+                    self.queue.push_other(Item {
                         block,
                         role: Role::Pass,
                     });
@@ -681,7 +721,7 @@ impl ExtrudeRate {
                     seg
                 };
                 let Some(mut seg) = seg else {
-                    self.planner.push_other(Item {
+                    self.queue.push_other(Item {
                         block,
                         role: Role::Pass,
                     });
@@ -729,7 +769,7 @@ impl ExtrudeRate {
                             text: format!("prime E{material:.5}: the screw runs during this dwell"),
                             style: CommentStyle::Semicolon,
                         });
-                        self.planner.push_stop(
+                        self.queue.push_stop(
                             seconds,
                             Item {
                                 block: b,
@@ -748,7 +788,7 @@ impl ExtrudeRate {
                             text,
                             style: CommentStyle::Semicolon,
                         });
-                        self.planner.push_other(Item {
+                        self.queue.push_other(Item {
                             block: b,
                             role: Role::Pass,
                         });
@@ -756,7 +796,7 @@ impl ExtrudeRate {
                     return;
                 }
                 if !moves {
-                    self.planner.push_move(
+                    self.queue.push_move(
                         seg,
                         Item {
                             block,
@@ -766,7 +806,7 @@ impl ExtrudeRate {
                     return;
                 }
                 if material <= 0.0 {
-                    self.planner.push_move(
+                    self.queue.push_move(
                         seg,
                         Item {
                             block,
@@ -844,7 +884,7 @@ impl ExtrudeRate {
                         }
                     }
                 };
-                self.planner.push_move(
+                self.queue.push_move(
                     seg,
                     Item {
                         block,
@@ -854,7 +894,7 @@ impl ExtrudeRate {
             }
             BlockKind::Dwell { seconds } => {
                 let s = *seconds;
-                self.planner.push_stop(
+                self.queue.push_stop(
                     s,
                     Item {
                         block,
@@ -875,14 +915,14 @@ impl ExtrudeRate {
                     }
                     block.kind = BlockKind::Comment;
                 }
-                self.planner.push_other(Item {
+                self.queue.push_other(Item {
                     block,
                     role: Role::Pass,
                 });
             }
             BlockKind::Command(c) if !c.clobbers.is_empty() => {
                 self.pos.forget(c.clobbers);
-                self.planner.push_stop(
+                self.queue.push_stop(
                     0.0,
                     Item {
                         block,
@@ -892,7 +932,7 @@ impl ExtrudeRate {
             }
             BlockKind::Verbatim(v) => {
                 self.pos.forget(v.clobbers);
-                self.planner.push_stop(
+                self.queue.push_stop(
                     0.0,
                     Item {
                         block,
@@ -900,7 +940,7 @@ impl ExtrudeRate {
                     },
                 );
             }
-            _ => self.planner.push_other(Item {
+            _ => self.queue.push_other(Item {
                 block,
                 role: Role::Pass,
             }),
@@ -909,14 +949,14 @@ impl ExtrudeRate {
 
     /// Emits the planned items, with the screw commands before them.
     fn drain(&mut self, out: &mut Output<'_>) {
-        while let Some(t) = self.planner.pop() {
-            self.emit(t, out);
+        while let Some((t, block)) = self.queue.pop() {
+            self.emit(t, block, out);
         }
     }
 
-    fn emit(&mut self, t: Timed<Item>, out: &mut Output<'_>) {
+    fn emit(&mut self, t: Timed<Role>, block: Block, out: &mut Output<'_>) {
         let seconds = t.duration();
-        let Item { block, role } = t.payload;
+        let role = t.payload;
         let span = block.span;
         match role {
             Role::Pass => {}
@@ -1085,7 +1125,7 @@ impl Pass for ExtrudeRate {
             self.flush_group(out);
             return;
         }
-        self.planner.finish();
+        self.queue.finish();
         self.drain(out);
         if self.held.is_some_and(|h| h > 0.0) {
             self.set_rate(0.0, self.last_span, out);

@@ -309,6 +309,9 @@ impl Tally {
     }
 }
 
+/// Most spare move boxes kept (a window's worth is enough).
+const SPARE_BOXES: usize = 1024;
+
 /// The `valve-lookahead` pass.
 pub struct ValveLookahead {
     model: Model,
@@ -340,6 +343,10 @@ pub struct ValveLookahead {
     dirty: bool,
     scratch_moving: Vec<usize>,
     scratch_stops: Vec<usize>,
+    /// Boxes of moves passed on, for the next moves (a box per move otherwise): the
+    /// boxes themselves are the point, so `vec_box` does not apply.
+    #[allow(clippy::vec_box)]
+    spare: Vec<Box<MoveData>>,
     /// Settling re-places a command: no warnings again.
     replacing: bool,
     next_check: usize,
@@ -425,6 +432,7 @@ impl ValveLookahead {
             dirty: false,
             scratch_moving: Vec::new(),
             scratch_stops: Vec::new(),
+            spare: Vec::new(),
             replacing: false,
             next_check: 32,
             in_run: false,
@@ -510,6 +518,17 @@ impl ValveLookahead {
             extra: String::new(),
         };
         self.model.motion(p_from, &probe)
+    }
+
+    /// `data` in a box, reusing a spare one.
+    fn boxed(&mut self, data: MoveData) -> Box<MoveData> {
+        match self.spare.pop() {
+            Some(mut b) => {
+                *b = data;
+                b
+            }
+            None => Box::new(data),
+        }
     }
 
     fn item(&mut self, block: Block, kind: Kind, extruding: bool) -> Item {
@@ -607,7 +626,8 @@ impl ValveLookahead {
                     p_to,
                     seg,
                 };
-                self.item(block, Kind::Move(Box::new(data)), extruding)
+                let kind = Kind::Move(self.boxed(data));
+                self.item(block, kind, extruding)
             }
             BlockKind::Dwell { seconds } => {
                 let s = *seconds;
@@ -1392,6 +1412,11 @@ impl ValveLookahead {
                 _ => {}
             }
             out.push(it.block);
+            if let Kind::Move(b) = it.kind
+                && self.spare.len() < SPARE_BOXES
+            {
+                self.spare.push(b);
+            }
         }
     }
 
