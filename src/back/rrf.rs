@@ -126,8 +126,7 @@ fn unsupported(word: &str) -> bool {
         return false;
     }
     match letter {
-        Some('G') => matches!(n as u32, 31 | 40..=43 | 49 | 80..=89),
-        Some('M') => matches!(n as u32, 6..=9),
+        Some(l) if l.is_ascii() => unsupported_code(l as u8, n as u32),
         _ => false,
     }
 }
@@ -141,8 +140,38 @@ fn unsupported(word: &str) -> bool {
 /// assert!(!any_unsupported("M3 S1000"));
 /// ```
 pub fn any_unsupported(text: &str) -> bool {
-    text.split_whitespace()
-        .any(|w| starts_command(w) && unsupported(w))
+    if !text.is_ascii() {
+        return text
+            .split_whitespace()
+            .any(|w| starts_command(w) && unsupported(w));
+    }
+    // Bytes for the usual ASCII line (every backend line of an rpm or valve command
+    // comes here); the same words as `split_whitespace` gives for ASCII.
+    text.as_bytes()
+        .split(|b| matches!(b, b' ' | b'\t' | b'\n' | 0x0B | 0x0C | b'\r'))
+        .any(|w| {
+            let Some((&letter, number)) = w.split_first() else {
+                return false;
+            };
+            if !matches!(letter, b'G' | b'g' | b'M' | b'm' | b'T' | b't') {
+                return false;
+            }
+            if !number.is_empty() && number.len() <= 9 && number.iter().all(u8::is_ascii_digit) {
+                let n = number
+                    .iter()
+                    .fold(0u32, |n, d| n * 10 + u32::from(d - b'0'));
+                return unsupported_code(letter.to_ascii_uppercase(), n);
+            }
+            std::str::from_utf8(w).is_ok_and(unsupported)
+        })
+}
+
+fn unsupported_code(letter: u8, n: u32) -> bool {
+    match letter {
+        b'G' => matches!(n, 31 | 40..=43 | 49 | 80..=89),
+        b'M' => matches!(n, 6..=9),
+        _ => false,
+    }
 }
 
 fn starts_command(word: &str) -> bool {
@@ -173,4 +202,46 @@ pub fn split_unsupported(text: &str) -> (String, String) {
         }
     }
     (kept.join(" "), removed.join(" "))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    proptest::proptest! {
+        /// The allocation-free check agrees with the split on command-like word soup,
+        /// ASCII or not.
+        #[test]
+        fn any_unsupported_agrees_with_the_split(
+            words in proptest::collection::vec(
+                "[GMTgmtSXP]{1}(-?[0-9]{0,3}(\\.[0-9]{0,2})?)|é|\u{0085}|\u{000B}",
+                0..6,
+            ),
+            seps in proptest::collection::vec("[ \t\u{000B}\u{000C}\u{00A0}]{1,2}", 6),
+        ) {
+            let mut text = String::new();
+            for (w, s) in words.iter().zip(&seps) {
+                text.push_str(w);
+                text.push_str(s);
+            }
+            let removes = !split_unsupported(&text).1.is_empty();
+            proptest::prop_assert_eq!(any_unsupported(&text), removes, "{:?}", text);
+        }
+    }
+
+    #[test]
+    fn finds_the_codes_rrf_lacks() {
+        for (text, expected) in [
+            ("M3 S1000", false),
+            ("M6 T1", true),
+            ("T1 m06", true),
+            ("G43 H1", true),
+            ("G43.1 Z2", false),
+            ("G31", true),
+            ("G1 X5 G80", true),
+            ("M", false),
+        ] {
+            assert_eq!(any_unsupported(text), expected, "{text}");
+        }
+    }
 }

@@ -244,6 +244,10 @@ impl Model {
             Some(Feed::InverseTime(f)) => length * f / 60.0,
         };
         for (k, d) in delta.iter().enumerate() {
+            // Most axes do not move: no division for them.
+            if *d == 0.0 {
+                continue;
+            }
             let u = (d / length).abs();
             if u <= 0.0 {
                 continue;
