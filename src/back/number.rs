@@ -28,7 +28,8 @@ pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
     })
 }
 
-const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
+/// `10^d` for the decimals a number is printed with (at most 9), exact.
+pub const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 
 /// Appends `units * 10^-decimals` to `out`, trimming trailing zeros when `trim` is set
 /// (`12.500` → `12.5`, `3.000` → `3`).

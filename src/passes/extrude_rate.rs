@@ -120,7 +120,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::{to_units, write_fixed};
+use crate::back::number::{POW10, to_units, write_fixed};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints,
@@ -246,9 +246,6 @@ pub const INFO: PassInfo = PassInfo {
     build: |t, ctx| Ok(Box::new(ExtrudeRate::new(super::options(t)?, ctx)?)),
     defaults: || super::to_toml(&Options::default()),
 };
-
-/// Powers of ten for the printed precisions.
-const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 
 /// E amounts below this (E units) are float dust from summing printed steps, not
 /// material.
@@ -481,7 +478,7 @@ impl ExtrudeRate {
             .decimals
             .and_then(|d| to_units(f, d.feed).map(|u| (u, d.feed)))
         {
-            Some((u, d)) => u as f64 / 10f64.powi(d as i32),
+            Some((u, d)) => u as f64 / POW10[usize::from(d.min(9))],
             None => f,
         }
     }
@@ -501,7 +498,7 @@ impl ExtrudeRate {
 
     fn printed_rpm(&self, rpm: f64) -> f64 {
         let d = self.options.rpm_decimals;
-        to_units(rpm, d).map_or(rpm, |u| u as f64 / 10f64.powi(d as i32))
+        to_units(rpm, d).map_or(rpm, |u| u as f64 / POW10[usize::from(d.min(9))])
     }
 
     /// The Cartesian tool point of a joint vector (`None` if it is not known).

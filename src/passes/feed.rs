@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::to_units;
+use crate::back::number::{POW10, to_units};
 use crate::diag::Diagnostic;
 use crate::ir::{AXIS_COUNT, Axis, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target};
 use crate::machine::{FeedRule, Machine};
@@ -161,7 +161,7 @@ impl Feed {
             printed[k] = match self.decimals {
                 Some(d) => {
                     let places = d.axis(a);
-                    to_units(v + off, places)? as f64 / 10f64.powi(places as i32)
+                    to_units(v + off, places)? as f64 / POW10[usize::from(places.min(9))]
                 }
                 None => v + off,
             };

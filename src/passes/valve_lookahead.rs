@@ -119,7 +119,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::to_units;
+use crate::back::number::{POW10, to_units};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints,
@@ -194,8 +194,6 @@ pub const INFO: PassInfo = PassInfo {
     defaults: || super::to_toml(&Options::default()),
 };
 
-/// Powers of ten for the printed precisions.
-const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 /// A split closer than this (seconds) to a block's end goes to the end instead.
 const SPLIT_EPS: f64 = 5e-5;
 /// Parts of a split move that move the tool less than this (mm)...

@@ -145,8 +145,8 @@ impl<'a> Args<'a> {
                 a.end,
             ));
         }
-        match text.parse::<f64>() {
-            Ok(v) if v.is_finite() => Ok(v),
+        match crate::front::gcode::parse_decimal(text) {
+            Some(v) if v.is_finite() => Ok(v),
             _ => Err(self.stmt.locate(
                 Diagnostic::error("cl::bad-number", format!("`{text}` is out of range"))
                     .with_label("too large")
@@ -522,8 +522,10 @@ impl Lowerer {
                 memchr::memchr(b',', &rest.as_bytes()[start..]).map_or(rest.len(), |i| start + i);
             // Rust's parser also takes `inf` and `nan`: those are not finite and go the
             // full way, which reports them.
-            match rest[start..end].trim_ascii().parse::<f64>() {
-                Ok(x) if x.is_finite() => v[n] = x,
+            // The G-code frontend's decimal reader: the same value as `str::parse`, with
+            // a fast path for the usual short decimals.
+            match crate::front::gcode::parse_decimal(rest[start..end].trim_ascii()) {
+                Some(x) if x.is_finite() => v[n] = x,
                 _ => return false,
             }
             n += 1;
