@@ -60,11 +60,11 @@ fn pose_block(line: u32, kind: MotionKind, tip: [f64; 3], axis: Unit<Vector3<f64
         span(line),
         BlockKind::Motion(Motion {
             kind,
-            target: Target::Pose(Pose {
+            target: Target::Pose(Box::new(Pose {
                 tip: Point3::from(tip),
                 axis,
                 extra: Joints::default(),
-            }),
+            })),
             feed: feed(),
             written: ncpost::ir::AxisSet::XYZ,
             machine_frame: false,

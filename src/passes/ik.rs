@@ -590,13 +590,14 @@ impl Pass for Ik {
 
     fn run(&mut self, block: Block, out: &mut Output<'_>) {
         match &block.kind {
-            BlockKind::Motion(m) => match m.target {
+            BlockKind::Motion(m) => match &m.target {
                 Target::Pose(pose) => {
+                    let pose = **pose;
                     self.pose_motion(block, pose, out);
                     return;
                 }
                 Target::Joints(j) => {
-                    self.prev = j;
+                    self.prev = *j;
                     if m.machine_frame {
                         self.prev.forget(m.written);
                     }

@@ -709,7 +709,7 @@ impl PolarIk {
 
     fn run_controller(&mut self, block: Block, out: &mut Output<'_>) {
         if let BlockKind::Motion(m) = &block.kind
-            && let (MotionKind::Arc(arc), Target::Joints(to)) = (m.kind, m.target)
+            && let (MotionKind::Arc(arc), &Target::Joints(to)) = (m.kind, &m.target)
         {
             let (a1, a2, _) = arc.plane.axes();
             if self.pos.known.contains(a1) && self.pos.known.contains(a2) {

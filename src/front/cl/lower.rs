@@ -251,11 +251,11 @@ pub(super) fn motion_block(
         span,
         BlockKind::Motion(Motion {
             kind,
-            target: Target::Pose(Pose {
+            target: Target::Pose(Box::new(Pose {
                 tip,
                 axis,
                 extra: Joints::default(),
-            }),
+            })),
             feed,
             written: AxisSet::XYZ,
             machine_frame: false,
