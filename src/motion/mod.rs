@@ -313,7 +313,8 @@ pub fn rule_distance(rule: FeedRule, delta: &[f64; AXIS_COUNT], arc: Option<f64>
     match rule {
         FeedRule::Euclidean => {
             let rest = norm(&[3, 4, 5, 6, 7, 8]);
-            let d = xyz.hypot(rest);
+            // `hypot(x, 0)` is `|x|` exactly: skip the libm call when no rotary moves.
+            let d = if rest == 0.0 { xyz } else { xyz.hypot(rest) };
             if d > 0.0 { d } else { e }
         }
         FeedRule::Nist | FeedRule::InverseTime => {
