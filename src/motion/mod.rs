@@ -220,13 +220,13 @@ impl Model {
         arc: Option<Arc>,
         feed: Option<Feed>,
     ) -> Segment {
-        let delta: [f64; AXIS_COUNT] = std::array::from_fn(|k| {
-            let a = Axis::ALL[k];
-            match (from.get(a), to.get(a)) {
-                (Some(p), Some(q)) => q - p,
-                _ => 0.0,
-            }
-        });
+        // Axes known at both ends move by the difference, the others not at all.
+        let both = from.known.intersection(to.known);
+        let mut delta = [0.0; AXIS_COUNT];
+        for a in both.iter() {
+            let k = a.index();
+            delta[k] = to.values[k] - from.values[k];
+        }
         let arc_len = arc.map(|a| arc_length(from, to, &a));
         let length = rule_distance(self.rule, &delta, arc_len);
         let mut seg = Segment {
@@ -243,9 +243,11 @@ impl Model {
             Some(Feed::PerMinute(f)) => (f / 60.0).max(self.min_speed),
             Some(Feed::InverseTime(f)) => length * f / 60.0,
         };
-        for (k, d) in delta.iter().enumerate() {
-            // Most axes do not move: no division for them.
-            if *d == 0.0 {
+        for a in both.iter() {
+            let k = a.index();
+            let d = delta[k];
+            // An axis that does not move limits nothing: no division for it.
+            if d == 0.0 {
                 continue;
             }
             let u = (d / length).abs();
