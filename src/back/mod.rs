@@ -424,8 +424,8 @@ impl<W: Write> Emitter<W> {
         let mut any = false;
         let mut e_target = None;
         let mut e_absolute_once = false;
-        for a in Axis::ALL {
-            let Some(v) = target.get(a) else { continue };
+        for a in target.known.iter() {
+            let v = target.values[a.index()];
             // A machine-frame (G53) move names only its own axes.
             if motion.machine_frame && !motion.written.contains(a) {
                 continue;
