@@ -243,6 +243,9 @@ impl Model {
             Some(Feed::PerMinute(f)) => (f / 60.0).max(self.min_speed),
             Some(Feed::InverseTime(f)) => length * f / 60.0,
         };
+        // Constant velocity has no acceleration: its divisions are skipped (they cost more
+        // than the rest of a segment on the hot path of every timed pass).
+        let accelerates = self.timing != Timing::ConstantVelocity;
         for a in both.iter() {
             let k = a.index();
             let d = delta[k];
@@ -257,14 +260,11 @@ impl Model {
             if let Some(m) = self.max_speed[k] {
                 v = v.min(m / u);
             }
-            if let Some(a) = self.accel[k] {
+            if accelerates && let Some(a) = self.accel[k] {
                 seg.accel = seg.accel.min(a / u);
             }
         }
         seg.v_max = v;
-        if self.timing == Timing::ConstantVelocity {
-            seg.accel = f64::INFINITY;
-        }
         seg
     }
 
