@@ -281,7 +281,7 @@ struct Queue {
 }
 
 // Inlined so a block is written straight into the queue, not copied through the call
-// (a block is 272 bytes; callgrind: 0.9 % of the polar pipeline).
+// (a block is over 200 bytes; callgrind: 0.9 % of the polar pipeline).
 impl Queue {
     #[inline(always)]
     fn push_move(&mut self, seg: Segment, item: Item) {

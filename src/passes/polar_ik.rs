@@ -446,11 +446,11 @@ pub fn plan_into(
     deep
 }
 
-/// Accept a piece once its bound is this close to the tolerance: the next try would
-/// lengthen it by under 5 %.
+/// Accept a piece once its bound is this close to the tolerance: the bound grows about
+/// with the square of the length, so the piece is within about 5 % of the longest.
 const GOOD_ENOUGH: f64 = 0.9;
 
-/// Tries per piece at the longest length within tolerance before halving.
+/// Regula-falsi tries per piece before falling back to halving.
 const TRIES: usize = 6;
 
 /// Cuts the stretch `a`–`b` of a move (parameters and polar points) into pieces whose
