@@ -465,14 +465,30 @@ impl ExtrudeRate {
     /// The joints as the controller reads them: each known axis but E rounded to the
     /// backend's decimals (offsets included), E forgotten (the screw modes print none).
     fn printed(&self, j: &Joints) -> Joints {
+        self.printed_reusing(j, None)
+    }
+
+    /// [`Self::printed`], taking the printed value of each axis that `seen` (joints and
+    /// their printed form) has at the same value: most moves change two or three axes,
+    /// and the rounding's division is the costly part.
+    fn printed_reusing(&self, j: &Joints, seen: Option<&(Joints, Joints)>) -> Joints {
         let mut p = *j;
         p.forget(crate::ir::AxisSet::from_iter([Axis::E]));
         if let Some(d) = self.decimals {
             for a in p.known.iter() {
+                let i = a.index();
+                if let Some((key, printed)) = seen
+                    && key.known.contains(a)
+                    && printed.known.contains(a)
+                    && key.values[i] == j.values[i]
+                {
+                    p.values[i] = printed.values[i];
+                    continue;
+                }
                 let places = d.axis(a);
-                let off = self.offsets[a.index()];
-                if let Some(u) = to_units(p.values[a.index()] + off, places) {
-                    p.values[a.index()] = u as f64 / POW10[places.min(9) as usize] - off;
+                let off = self.offsets[i];
+                if let Some(u) = to_units(p.values[i] + off, places) {
+                    p.values[i] = u as f64 / POW10[places.min(9) as usize] - off;
                 }
             }
         }
@@ -706,7 +722,10 @@ impl ExtrudeRate {
                     Some((j, p)) if j == from => p,
                     _ => self.printed(&from),
                 };
-                let p_to = self.printed(if m.machine_frame { &to } else { &next });
+                let p_to = self.printed_reusing(
+                    if m.machine_frame { &to } else { &next },
+                    self.p_cache.as_ref(),
+                );
                 self.p_cache = Some((next, p_to));
                 self.pos = next;
                 // Drop E from the move.

@@ -455,13 +455,29 @@ impl ValveLookahead {
     /// The joints as the controller reads them: each known axis rounded to the backend's
     /// decimals (with the G92 offsets the backend adds).
     fn printed(&self, j: &Joints) -> Joints {
+        self.printed_reusing(j, None)
+    }
+
+    /// [`Self::printed`], taking the printed value of each axis that `seen` (joints and
+    /// their printed form) has at the same value: most moves change two or three axes,
+    /// and the rounding's division is the costly part.
+    fn printed_reusing(&self, j: &Joints, seen: Option<&(Joints, Joints)>) -> Joints {
         let mut p = *j;
         if let Some(d) = self.decimals {
             for a in p.known.iter() {
+                let i = a.index();
+                if let Some((key, printed)) = seen
+                    && key.known.contains(a)
+                    && printed.known.contains(a)
+                    && key.values[i] == j.values[i]
+                {
+                    p.values[i] = printed.values[i];
+                    continue;
+                }
                 let places = d.axis(a).min(9);
-                let off = self.offsets[a.index()];
-                if let Some(u) = to_units(p.values[a.index()] + off, places) {
-                    p.values[a.index()] = u as f64 / POW10[places as usize] - off;
+                let off = self.offsets[i];
+                if let Some(u) = to_units(p.values[i] + off, places) {
+                    p.values[i] = u as f64 / POW10[places as usize] - off;
                 }
             }
         }
@@ -587,7 +603,7 @@ impl ValveLookahead {
                     Some((j, p)) if j == from => p,
                     _ => self.printed(&from),
                 };
-                let p_to = self.printed(&next);
+                let p_to = self.printed_reusing(&next, self.p_cache.as_ref());
                 self.p_cache = Some((next, p_to));
                 self.pos = next;
                 let material = if de < 0.0 {
