@@ -38,24 +38,13 @@ sizes=("$@")
 ((${#sizes[@]})) || sizes=(100)
 
 log() { echo "[bench-cpu] $*" >&2; }
-fsize() { stat -c %s "$1"; }
+# shellcheck source=scripts/bench-lib.sh
+source "$(pwd)/scripts/bench-lib.sh"
 
 if [[ ! -x $NCPOST || ! -x $PEER ]]; then
     log "building release binaries"
     cargo build --release --bin ncpost --example peer_gcode_crate
 fi
-
-make_file() { # make_file MIN_BYTES DEST
-    local min=$1 dest=$2
-    [[ -f $dest ]] && (($(fsize "$dest") >= min)) && return
-    local unit=$DATA/.cpu-unit.gcode
-    cat "$SOURCE" >"$unit"
-    [[ -z $(tail -c 1 "$unit") ]] || echo >>"$unit"
-    local n=$(((min + $(fsize "$unit") - 1) / $(fsize "$unit"))) i
-    log "generating $dest: $n x $SOURCE"
-    for ((i = 0; i < n; i++)); do cat "$unit"; done >"$dest.tmp"
-    mv "$dest.tmp" "$dest"
-}
 
 # run NAME FILE CMD...: best wall / user+sys over REPEAT runs, max RSS.
 run() {
@@ -86,7 +75,7 @@ echo "| tool | file MB | wall s | CPU s (user + sys) | MB/s wall | MB/s CPU | pe
 echo "| --- | ---: | ---: | ---: | ---: | ---: | ---: |"
 for size in "${sizes[@]}"; do
     file=$DATA/peers_${size}MB.gcode
-    make_file $((size * 1000000)) "$file"
+    repeat_to $((size * 1000000)) "$file" "$SOURCE"
     run "ncpost ($size MB)" "$file" "$NCPOST" run --emit gcode -o "$OUT" "$file"
     if [[ $PEERS == 1 ]]; then
         run "gcode-crate-0.7 ($size MB)" "$file" "$PEER" "$file"
@@ -97,7 +86,7 @@ done
 if [[ $CALLGRIND == 1 ]]; then
     prefix=$DATA/cpu_prefix_${CG_MB}MB.gcode
     if [[ ! -f $prefix ]]; then
-        make_file $((CG_MB * 1000000 + 1000000)) "$prefix.src"
+        repeat_to $((CG_MB * 1000000 + 1000000)) "$prefix.src" "$SOURCE"
         head -c $((CG_MB * 1000000)) "$prefix.src" | sed '$d' >"$prefix"
         rm -f "$prefix.src"
     fi

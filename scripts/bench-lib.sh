@@ -1,4 +1,26 @@
 # Shared by the bench scripts (sourced, not run). Needs DATA, REPEAT and a `log` function.
+
+fsize() { stat -c %s "$1"; }
+
+# repeat_to MIN_BYTES DEST SOURCE: DEST = SOURCE repeated until it has at least MIN_BYTES
+# (an existing DEST that big is kept). The unit is SOURCE ending with a newline, so
+# repetitions never glue two lines together.
+repeat_to() {
+    local min=$1 dest=$2 source=$3
+    if [[ -f $dest ]] && (($(fsize "$dest") >= min)); then
+        log "reusing $dest ($(fsize "$dest") bytes)"
+        return
+    fi
+    local unit=$DATA/.unit.gcode bytes n i
+    cat "$source" >"$unit"
+    [[ -z $(tail -c 1 "$unit") ]] || echo >>"$unit"
+    bytes=$(fsize "$unit")
+    n=$(((min + bytes - 1) / bytes))
+    log "generating $dest: $n x $source"
+    for ((i = 0; i < n; i++)); do cat "$unit"; done >"$dest.tmp"
+    mv "$dest.tmp" "$dest"
+}
+
 #
 # best_of NAME INPUT OUT CMD...: runs CMD REPEAT times under /usr/bin/time, with INPUT in
 # the page cache first. OUT, unless empty, is removed before each run and must exist and

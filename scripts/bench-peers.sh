@@ -47,7 +47,8 @@ OUT=$DATA/out.gcode
 mkdir -p "$DATA"
 
 log() { echo "[bench-peers] $*" >&2; }
-fsize() { stat -c %s "$1"; }
+# shellcheck source=scripts/bench-lib.sh
+source "$REPO_ROOT/scripts/bench-lib.sh"
 
 # ---------------------------------------------------------------- tools ----
 if [[ ! -x /usr/bin/time ]]; then
@@ -65,33 +66,12 @@ if [[ ! -f $SOURCE ]]; then
     echo "error: corpus file $SOURCE not found (expected ../shared/corpus next to the repo)" >&2
     exit 1
 fi
-# One unit = the source file, guaranteed to end with a newline so repetitions
-# never glue two lines together.
-UNIT=$DATA/.unit.gcode
-cat "$SOURCE" >"$UNIT.tmp"
-[[ -z $(tail -c 1 "$UNIT.tmp") ]] || echo >>"$UNIT.tmp"
-mv "$UNIT.tmp" "$UNIT"
-UNIT_BYTES=$(fsize "$UNIT")
-
-# repeat_to MIN_BYTES DEST: DEST = UNIT repeated until >= MIN_BYTES (kept if already big enough).
-repeat_to() {
-    local min=$1 dest=$2
-    if [[ -f $dest ]] && (($(fsize "$dest") >= min)); then
-        log "reusing $dest ($(fsize "$dest") bytes)"
-        return
-    fi
-    local n=$(((min + UNIT_BYTES - 1) / UNIT_BYTES))
-    log "generating $dest: $n x $SOURCE"
-    local i
-    for ((i = 0; i < n; i++)); do cat "$UNIT"; done >"$dest.tmp"
-    mv "$dest.tmp" "$dest"
-}
-repeat_to $((SIZE_MB * 1000000)) "$FILE"
+repeat_to $((SIZE_MB * 1000000)) "$FILE" "$SOURCE"
 
 # pygcode prefix: the first PREFIX_MB MB of the big file, cut back to whole lines.
 if [[ ! -f $PREFIX ]]; then
     log "generating $PREFIX (first ${PREFIX_MB} MB of whole lines)"
-    repeat_to $((PREFIX_MB * 1000000)) "$PREFIX.src"
+    repeat_to $((PREFIX_MB * 1000000)) "$PREFIX.src" "$SOURCE"
     head -c $((PREFIX_MB * 1000000)) "$PREFIX.src" | sed '$d' >"$PREFIX.tmp"
     rm -f "$PREFIX.src"
     mv "$PREFIX.tmp" "$PREFIX"
@@ -127,9 +107,6 @@ fi
 # ---------------------------------------------------------------- runs -----
 declare -a ROWS=() FAILED=()
 declare -A WALL=() MBPS=() RSS=() CMD=() SIZE=()
-
-# shellcheck source=scripts/bench-lib.sh
-source "$REPO_ROOT/scripts/bench-lib.sh"
 
 # timed NAME INPUT CMD...: best_of with the table's columns; ncpost must write $OUT.
 timed() {

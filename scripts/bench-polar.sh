@@ -46,7 +46,8 @@ PRESET=$DATA/polar-printer-centred.toml
 mkdir -p "$DATA"
 
 log() { echo "[bench-polar] $*" >&2; }
-fsize() { stat -c %s "$1"; }
+# shellcheck source=scripts/bench-lib.sh
+source "$REPO_ROOT/scripts/bench-lib.sh"
 
 if [[ ! -x /usr/bin/time ]]; then
     echo "error: /usr/bin/time is missing; install the Debian package 'time'" >&2
@@ -58,20 +59,7 @@ if [[ ! -f $SOURCE ]]; then
 fi
 
 # ---------------------------------------------------------------- data -----
-UNIT=$DATA/.polar-unit.gcode
-cat "$SOURCE" >"$UNIT.tmp"
-[[ -z $(tail -c 1 "$UNIT.tmp") ]] || echo >>"$UNIT.tmp"
-mv "$UNIT.tmp" "$UNIT"
-UNIT_BYTES=$(fsize "$UNIT")
-MIN=$((SIZE_MB * 1000000))
-if [[ -f $FILE ]] && (($(fsize "$FILE") >= MIN)); then
-    log "reusing $FILE ($(fsize "$FILE") bytes)"
-else
-    n=$(((MIN + UNIT_BYTES - 1) / UNIT_BYTES))
-    log "generating $FILE: $n x $SOURCE"
-    for ((i = 0; i < n; i++)); do cat "$UNIT"; done >"$FILE.tmp"
-    mv "$FILE.tmp" "$FILE"
-fi
+repeat_to $((SIZE_MB * 1000000)) "$FILE" "$SOURCE"
 
 grep -q '^center = \[0.0, 0.0\]$' passes/polar-printer.toml || {
     echo "error: passes/polar-printer.toml has no 'center = [0.0, 0.0]' line to replace" >&2
@@ -87,9 +75,6 @@ cargo build --release --bin ncpost
 # ---------------------------------------------------------------- runs -----
 declare -a ROWS=() FAILED=()
 declare -A WALL=() MBPS=() RSS=() CMD=() OUTB=()
-
-# shellcheck source=scripts/bench-lib.sh
-source "$REPO_ROOT/scripts/bench-lib.sh"
 
 # timed NAME OUT CMD...: best_of on $FILE; CMD writes OUT.
 timed() {
