@@ -68,6 +68,34 @@ impl Decimals {
             self.linear
         }
     }
+
+    /// The joints as the controller reads them: each known axis printed at its decimals
+    /// with `offsets` (the G92 offsets the backend adds), which are then taken off again.
+    /// An axis that `seen` (joints and their printed form) has at the same value takes its
+    /// printed value from there: most moves change two or three axes, and the rounding's
+    /// division is the costly part.
+    #[inline]
+    pub fn printed_joints(
+        &self,
+        j: &Joints,
+        offsets: &[f64; AXIS_COUNT],
+        seen: Option<&(Joints, Joints)>,
+    ) -> Joints {
+        let mut p = *j;
+        for a in j.known.iter() {
+            let i = a.index();
+            if let Some((key, printed)) = seen
+                && key.known.contains(a)
+                && printed.known.contains(a)
+                && key.values[i] == j.values[i]
+            {
+                p.values[i] = printed.values[i];
+            } else if let Some(v) = number::printed(j.values[i] + offsets[i], self.axis(a)) {
+                p.values[i] = v - offsets[i];
+            }
+        }
+        p
+    }
 }
 
 /// How comments are written.

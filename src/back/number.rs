@@ -28,8 +28,21 @@ pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
     })
 }
 
+/// `value` as the controller reads it when printed at `decimals` places (at most 9):
+/// [`to_units`] and back; `None` when it does not fit.
+///
+/// ```
+/// use ncpost::back::number::printed;
+/// assert_eq!(printed(1.23456, 3), Some(1.235));
+/// assert_eq!(printed(f64::INFINITY, 3), None);
+/// ```
+#[inline]
+pub fn printed(value: f64, decimals: u8) -> Option<f64> {
+    to_units(value, decimals).map(|u| u as f64 / POW10[usize::from(decimals.min(9))])
+}
+
 /// `10^d` for the decimals a number is printed with (at most 9), exact.
-pub const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
+const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 
 /// Appends `units * 10^-decimals` to `out`, trimming trailing zeros when `trim` is set
 /// (`12.500` → `12.5`, `3.000` → `3`).

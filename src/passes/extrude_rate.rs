@@ -120,7 +120,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::{POW10, to_units, write_fixed};
+use crate::back::number::{printed, write_fixed};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints,
@@ -468,41 +468,19 @@ impl ExtrudeRate {
         self.printed_reusing(j, None)
     }
 
-    /// [`Self::printed`], taking the printed value of each axis that `seen` (joints and
-    /// their printed form) has at the same value: most moves change two or three axes,
-    /// and the rounding's division is the costly part.
+    /// [`Self::printed`], taking unchanged axes' printed values from `seen` (see
+    /// [`Decimals::printed_joints`]).
     fn printed_reusing(&self, j: &Joints, seen: Option<&(Joints, Joints)>) -> Joints {
         let mut p = *j;
         p.forget(crate::ir::AxisSet::from_iter([Axis::E]));
-        if let Some(d) = self.decimals {
-            for a in p.known.iter() {
-                let i = a.index();
-                if let Some((key, printed)) = seen
-                    && key.known.contains(a)
-                    && printed.known.contains(a)
-                    && key.values[i] == j.values[i]
-                {
-                    p.values[i] = printed.values[i];
-                    continue;
-                }
-                let places = d.axis(a);
-                let off = self.offsets[i];
-                if let Some(u) = to_units(p.values[i] + off, places) {
-                    p.values[i] = u as f64 / POW10[places.min(9) as usize] - off;
-                }
-            }
+        match self.decimals {
+            Some(d) => d.printed_joints(&p, &self.offsets, seen),
+            None => p,
         }
-        p
     }
 
     fn printed_feed(&self, f: f64) -> f64 {
-        match self
-            .decimals
-            .and_then(|d| to_units(f, d.feed).map(|u| (u, d.feed)))
-        {
-            Some((u, d)) => u as f64 / POW10[usize::from(d.min(9))],
-            None => f,
-        }
+        self.decimals.and_then(|d| printed(f, d.feed)).unwrap_or(f)
     }
 
     /// The largest printable feed not above `f` (a slowed block must not come out
@@ -520,7 +498,7 @@ impl ExtrudeRate {
 
     fn printed_rpm(&self, rpm: f64) -> f64 {
         let d = self.options.rpm_decimals;
-        to_units(rpm, d).map_or(rpm, |u| u as f64 / POW10[usize::from(d.min(9))])
+        printed(rpm, d).unwrap_or(rpm)
     }
 
     /// The Cartesian tool point of a joint vector (`None` if it is not known).

@@ -30,7 +30,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::{POW10, to_units};
+use crate::back::number::{self, to_units};
 use crate::diag::Diagnostic;
 use crate::ir::{AXIS_COUNT, Axis, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target};
 use crate::machine::{FeedRule, Machine};
@@ -159,10 +159,7 @@ impl Feed {
             let v = j.get(a)?;
             let off = self.offsets[a.index()];
             printed[k] = match self.decimals {
-                Some(d) => {
-                    let places = d.axis(a);
-                    to_units(v + off, places)? as f64 / POW10[usize::from(places.min(9))]
-                }
+                Some(d) => number::printed(v + off, d.axis(a))?,
                 None => v + off,
             };
             ir[k] = printed[k] - off;

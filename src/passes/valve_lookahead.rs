@@ -119,7 +119,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::{POW10, to_units};
+use crate::back::number::printed;
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints,
@@ -458,30 +458,13 @@ impl ValveLookahead {
         self.printed_reusing(j, None)
     }
 
-    /// [`Self::printed`], taking the printed value of each axis that `seen` (joints and
-    /// their printed form) has at the same value: most moves change two or three axes,
-    /// and the rounding's division is the costly part.
+    /// [`Self::printed`], taking unchanged axes' printed values from `seen` (see
+    /// [`Decimals::printed_joints`]).
     fn printed_reusing(&self, j: &Joints, seen: Option<&(Joints, Joints)>) -> Joints {
-        let mut p = *j;
-        if let Some(d) = self.decimals {
-            for a in p.known.iter() {
-                let i = a.index();
-                if let Some((key, printed)) = seen
-                    && key.known.contains(a)
-                    && printed.known.contains(a)
-                    && key.values[i] == j.values[i]
-                {
-                    p.values[i] = printed.values[i];
-                    continue;
-                }
-                let places = d.axis(a).min(9);
-                let off = self.offsets[i];
-                if let Some(u) = to_units(p.values[i] + off, places) {
-                    p.values[i] = u as f64 / POW10[places as usize] - off;
-                }
-            }
+        match self.decimals {
+            Some(d) => d.printed_joints(j, &self.offsets, seen),
+            None => *j,
         }
-        p
     }
 
     /// How far the tool moves between two joint vectors, mm: through the `[polar]`
@@ -509,13 +492,7 @@ impl ValveLookahead {
     }
 
     fn printed_feed(&self, f: f64) -> f64 {
-        match self
-            .decimals
-            .and_then(|d| to_units(f, d.feed.min(9)).map(|u| (u, d.feed.min(9))))
-        {
-            Some((u, d)) => u as f64 / POW10[d as usize],
-            None => f,
-        }
+        self.decimals.and_then(|d| printed(f, d.feed)).unwrap_or(f)
     }
 
     /// The segment of motion `m` between printed joints.
