@@ -633,7 +633,8 @@ proptest! {
             r: p0.norm(),
             theta: p0.y.atan2(p0.x) + f64::from(turns) * std::f64::consts::TAU,
         };
-        let (pieces, deep) = plan(p0, p1, start, policy, TOL, 24, Some(5.0));
+        let mut pieces = Vec::new();
+        let deep = plan(p0, p1, start, policy, TOL, 24, Some(5.0), &mut pieces);
         prop_assert!(!deep);
         prop_assert!(pieces.windows(2).all(|w| w[0].s <= w[1].s), "pieces out of order");
         let mut a = start;
@@ -679,7 +680,8 @@ proptest! {
             }
             cur = (lo, at(lo));
         }
-        let (pieces, _) = plan(p0, p1, start, OriginPolicy::RotateInPlace, TOL, 24, None);
+        let mut pieces = Vec::new();
+        plan(p0, p1, start, OriginPolicy::RotateInPlace, TOL, 24, None, &mut pieces);
         prop_assert!(
             pieces.len() as f64 <= fewest as f64 * 1.1 + 1.0,
             "{} pieces where {} would do", pieces.len(), fewest

@@ -245,49 +245,26 @@ fn nearest_turn(angle: f64, reference: f64) -> f64 {
 }
 
 /// Plans one straight XY move from `p0` (where the machine is at `start`) to `p1`: the
-/// pieces to emit, in order, the last ending at `s = 1`.
+/// pieces to emit, in order, the last ending at `s = 1`, into `pieces` (cleared first, so a
+/// caller keeps one buffer for every move).
 ///
 /// `cap_radius`, when given, is the distance from the centre inside which the speed cap
-/// lowers the feed: the move is also split where it crosses that circle. The second value
-/// is true when a piece would have had to be shorter than `2^-max_depth` of the move.
+/// lowers the feed: the move is also split where it crosses that circle. Returns true when
+/// a piece would have had to be shorter than `2^-max_depth` of the move.
 ///
 /// ```
 /// use nalgebra::Vector2;
 /// use ncpost::machine::polar::OriginPolicy;
 /// use ncpost::passes::polar_ik::{plan, PolarPoint};
 /// let start = PolarPoint { r: 10.0, theta: 0.0 };
-/// let (pieces, _) = plan(Vector2::new(10.0, 0.0), Vector2::new(-10.0, 0.0), start,
-///     OriginPolicy::SignedRadius, 0.01, 24, None);
+/// let mut pieces = Vec::new();
+/// plan(Vector2::new(10.0, 0.0), Vector2::new(-10.0, 0.0), start,
+///     OriginPolicy::SignedRadius, 0.01, 24, None, &mut pieces);
 /// assert_eq!(pieces.len(), 1);
 /// assert_eq!(pieces[0].to, PolarPoint { r: -10.0, theta: 0.0 });
 /// ```
-pub fn plan(
-    p0: Vector2<f64>,
-    p1: Vector2<f64>,
-    start: PolarPoint,
-    policy: OriginPolicy,
-    tolerance: f64,
-    max_depth: u32,
-    cap_radius: Option<f64>,
-) -> (Vec<Piece>, bool) {
-    let mut pieces = Vec::new();
-    let deep = plan_into(
-        p0,
-        p1,
-        start,
-        policy,
-        tolerance,
-        max_depth,
-        cap_radius,
-        &mut pieces,
-    );
-    (pieces, deep)
-}
-
-/// [`plan`] into `pieces` (cleared first), so a caller can keep one buffer for every
-/// move; returns whether `max_depth` stopped the cutting.
 #[allow(clippy::too_many_arguments)]
-pub fn plan_into(
+pub fn plan(
     p0: Vector2<f64>,
     p1: Vector2<f64>,
     start: PolarPoint,
@@ -900,31 +877,23 @@ impl PolarIk {
             Some(v) if self.options.speed_cap && self.cap_rate > 0.0 => Some(v / self.cap_rate),
             _ => None,
         };
-        let mut pieces = std::mem::take(&mut self.pieces);
-        let deep = if rapid && !self.options.rapids {
-            plan_into(
-                p0,
-                p1,
-                node,
-                self.policy,
-                f64::INFINITY,
-                0,
-                None,
-                &mut pieces,
-            );
-            false
+        // A rapid that is not densified is one piece: no tolerance holds it back.
+        let (tolerance, max_depth, cap_radius) = if rapid && !self.options.rapids {
+            (f64::INFINITY, 0, None)
         } else {
-            plan_into(
-                p0,
-                p1,
-                node,
-                self.policy,
-                self.options.tolerance,
-                self.options.max_depth,
-                cap_radius,
-                &mut pieces,
-            )
+            (self.options.tolerance, self.options.max_depth, cap_radius)
         };
+        let mut pieces = std::mem::take(&mut self.pieces);
+        let deep = plan(
+            p0,
+            p1,
+            node,
+            self.policy,
+            tolerance,
+            max_depth,
+            cap_radius,
+            &mut pieces,
+        );
         if deep {
             out.diag(
                 Diagnostic::warning(
