@@ -170,11 +170,6 @@ impl Pass for Limits {
         "limits"
     }
 
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
-        self.check(&block, out.diags);
-        out.push(block);
-    }
-
     fn observe(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) -> bool {
         for block in blocks {
             self.check(block, diags);

@@ -85,11 +85,17 @@ impl<'a> Output<'a> {
 pub trait Pass: Send {
     /// The kebab-case name, as in [`REGISTRY`].
     fn name(&self) -> &'static str;
-    /// Consumes one block and pushes zero or more blocks.
-    fn run(&mut self, block: Block, out: &mut Output<'_>);
-    /// A pass that only reads blocks (a check) may look at a whole batch where it lies
-    /// and return `true`: the blocks then go on as they are, without being moved through
-    /// [`Pass::run`]. The default returns `false`, and the pipeline calls `run` on each.
+    /// Consumes one block and pushes zero or more blocks. The default is for a pass that
+    /// only reads blocks: it observes the block alone and passes it on; every pass that
+    /// changes blocks implements this.
+    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+        self.observe(std::slice::from_ref(&block), out.diags);
+        out.push(block);
+    }
+    /// A pass that only reads blocks (a check) looks at a whole batch where it lies and
+    /// returns `true`: the blocks then go on as they are, without being moved through
+    /// [`Pass::run`] (whose default then serves a block at a time). The default returns
+    /// `false`, and the pipeline calls `run` on each block.
     fn observe(&mut self, _blocks: &[Block], _diags: &mut Vec<Diagnostic>) -> bool {
         false
     }

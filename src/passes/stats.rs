@@ -364,11 +364,6 @@ impl Pass for Stats {
         "stats"
     }
 
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
-        self.count(&block);
-        out.push(block);
-    }
-
     fn observe(&mut self, blocks: &[Block], _diags: &mut Vec<Diagnostic>) -> bool {
         for block in blocks {
             self.count(block);

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Output, Pass, PassInfo};
+use super::{Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::Block;
 use crate::ir::verify::Verifier;
@@ -31,11 +31,6 @@ pub const INFO: PassInfo = PassInfo {
 impl Pass for Verify {
     fn name(&self) -> &'static str {
         "verify"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
-        self.check(&block, out.diags);
-        out.push(block);
     }
 
     fn observe(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) -> bool {
