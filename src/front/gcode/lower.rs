@@ -1602,23 +1602,12 @@ impl Lowerer {
                     // (exact_decimal gives both the same bits).
                     let mut mantissa: u64 = 0;
                     let int_start = j;
-                    while j < b.len() && b[j].is_ascii_digit() {
-                        mantissa = mantissa
-                            .wrapping_mul(10)
-                            .wrapping_add(u64::from(b[j] - b'0'));
-                        j += 1;
-                    }
+                    j = read_digits(b, j, &mut mantissa);
                     let int_digits = j - int_start;
                     let mut frac_digits = 0;
                     if j < b.len() && b[j] == b'.' {
-                        j += 1;
-                        let f = j;
-                        while j < b.len() && b[j].is_ascii_digit() {
-                            mantissa = mantissa
-                                .wrapping_mul(10)
-                                .wrapping_add(u64::from(b[j] - b'0'));
-                            j += 1;
-                        }
+                        let f = j + 1;
+                        j = read_digits(b, f, &mut mantissa);
                         frac_digits = j - f;
                     }
                     if int_digits + frac_digits == 0
@@ -2215,6 +2204,18 @@ pub fn parse_decimal(s: &str) -> Option<f64> {
         return s.parse().ok();
     }
     Some(exact_decimal(mantissa, frac, negative))
+}
+
+/// Reads the ASCII digits of `b` from `at` into `mantissa` (wrapping: the caller counts
+/// the digits and refuses too many); returns where they end.
+fn read_digits(b: &[u8], mut at: usize, mantissa: &mut u64) -> usize {
+    while at < b.len() && b[at].is_ascii_digit() {
+        *mantissa = mantissa
+            .wrapping_mul(10)
+            .wrapping_add(u64::from(b[at] - b'0'));
+        at += 1;
+    }
+    at
 }
 
 /// `±mantissa / 10^frac` for a mantissa of at most 15 digits: both are exact in f64, so
