@@ -144,37 +144,15 @@ impl JointPlot {
             } else {
                 (-1.0, 1.0)
             };
-            let h = PANEL - 30.0;
             let unit = if axis.is_rotary() { "deg" } else { "mm" };
-            let _ = writeln!(
-                s,
-                "<rect x=\"{LEFT}\" y=\"{y0:.1}\" width=\"{WIDTH}\" height=\"{h:.1}\" fill=\"none\" stroke=\"#999\"/>"
-            );
-            let _ = writeln!(
-                s,
-                "<text x=\"5\" y=\"{:.1}\">{} ({unit})</text>",
-                y0 + h / 2.0,
-                axis.letter()
-            );
-            let _ = writeln!(
-                s,
-                "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\" font-size=\"10\">{hi:.3}</text>\
-                 <text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\" font-size=\"10\">{lo:.3}</text>",
-                LEFT - 4.0,
-                y0 + 10.0,
-                LEFT - 4.0,
-                y0 + h
-            );
-            let mut path = String::new();
-            for (i, (t, v)) in points.iter().enumerate() {
-                let x = LEFT + WIDTH * t / t_end;
-                let y = y0 + h - h * (v - lo) / (hi - lo);
-                let _ = write!(path, "{}{x:.2},{y:.2}", if i == 0 { "" } else { " " });
-            }
-            let _ = writeln!(
-                s,
-                "<polyline fill=\"none\" stroke=\"#1f5fbf\" stroke-width=\"1\" points=\"{path}\"/>"
-            );
+            let label = format!("{} ({unit})", axis.letter());
+            let frame = Panel {
+                left: LEFT,
+                width: WIDTH,
+                y0,
+                h: PANEL - 30.0,
+            };
+            frame.draw(&mut s, &label, (lo, hi), &points, t_end);
         }
         let _ = writeln!(
             s,
@@ -567,6 +545,54 @@ impl SpeedPlot {
     }
 }
 
+/// Where one panel of a stacked time plot lies: its frame from `left` over `width`, `h`
+/// high from `y0`.
+struct Panel {
+    left: f64,
+    width: f64,
+    y0: f64,
+    h: f64,
+}
+
+impl Panel {
+    /// The frame, the label at the left, the range `lo..hi` as ticks, and the line through
+    /// `points` (time, value) for a time axis ending at `t_end` seconds.
+    fn draw(
+        &self,
+        s: &mut String,
+        label: &str,
+        (lo, hi): (f64, f64),
+        points: &[(f64, f64)],
+        t_end: f64,
+    ) {
+        let Panel { left, width, y0, h } = *self;
+        let _ = writeln!(
+            s,
+            "<rect x=\"{left}\" y=\"{y0:.1}\" width=\"{width}\" height=\"{h:.1}\" fill=\"none\" stroke=\"#999\"/>"
+        );
+        let _ = writeln!(s, "<text x=\"5\" y=\"{:.1}\">{label}</text>", y0 + h / 2.0);
+        let _ = writeln!(
+            s,
+            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\" font-size=\"10\">{hi:.3}</text>\
+             <text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\" font-size=\"10\">{lo:.3}</text>",
+            left - 4.0,
+            y0 + 10.0,
+            left - 4.0,
+            y0 + h
+        );
+        let mut path = String::new();
+        for (i, (t, v)) in points.iter().enumerate() {
+            let x = left + width * t / t_end;
+            let y = y0 + h - h * (v - lo) / (hi - lo);
+            let _ = write!(path, "{}{x:.2},{y:.2}", if i == 0 { "" } else { " " });
+        }
+        let _ = writeln!(
+            s,
+            "<polyline fill=\"none\" stroke=\"#1f5fbf\" stroke-width=\"1\" points=\"{path}\"/>"
+        );
+    }
+}
+
 /// Panels of (time, value) lines stacked over one time axis.
 fn stacked_svg(title: &str, seconds: f64, panels: &[(String, Vec<(f64, f64)>)]) -> String {
     const WIDTH: f64 = 900.0;
@@ -597,30 +623,13 @@ fn stacked_svg(title: &str, seconds: f64, panels: &[(String, Vec<(f64, f64)>)]) 
         } else {
             lo + 1.0
         };
-        let _ = writeln!(
-            s,
-            "<rect x=\"{LEFT}\" y=\"{y0:.1}\" width=\"{WIDTH}\" height=\"{h:.1}\" fill=\"none\" stroke=\"#999\"/>"
-        );
-        let _ = writeln!(s, "<text x=\"5\" y=\"{:.1}\">{name}</text>", y0 + h / 2.0);
-        let _ = writeln!(
-            s,
-            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\" font-size=\"10\">{hi:.3}</text>\
-             <text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"end\" font-size=\"10\">{lo:.3}</text>",
-            LEFT - 4.0,
-            y0 + 10.0,
-            LEFT - 4.0,
-            y0 + h
-        );
-        let mut path = String::new();
-        for (i, (t, v)) in points.iter().enumerate() {
-            let x = LEFT + WIDTH * t / t_end;
-            let y = y0 + h - h * (v - lo) / (hi - lo);
-            let _ = write!(path, "{}{x:.2},{y:.2}", if i == 0 { "" } else { " " });
-        }
-        let _ = writeln!(
-            s,
-            "<polyline fill=\"none\" stroke=\"#1f5fbf\" stroke-width=\"1\" points=\"{path}\"/>"
-        );
+        let frame = Panel {
+            left: LEFT,
+            width: WIDTH,
+            y0,
+            h,
+        };
+        frame.draw(&mut s, name, (lo, hi), points, t_end);
     }
     let _ = writeln!(
         s,
