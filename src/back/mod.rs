@@ -738,35 +738,34 @@ impl<W: Write> Emitter<W> {
         if let Flavor::Rrf { unsupported, .. } = self.flavor
             && rrf::any_unsupported(&cmd.text)
         {
+            // `any_unsupported` holds exactly when the split removes something.
             let (k, removed) = rrf::split_unsupported(&cmd.text);
-            if !removed.is_empty() {
-                let msg = format!("`{removed}` is not supported by RepRapFirmware");
-                match unsupported {
-                    rrf::Unsupported::Error => {
-                        return Err(Diagnostic::error("rrf::unsupported", msg)
-                            .at_span(block.span)
-                            .with_help("remove it, or set the rrf option `unsupported` to \"comment\" or \"keep\""));
-                    }
-                    rrf::Unsupported::Comment => {
-                        diags.push(
-                            Diagnostic::warning("rrf::unsupported", msg)
-                                .at_span(block.span)
-                                .with_help("it is written as a comment; set the rrf option `unsupported = \"keep\"` if your macros implement it"),
-                        );
-                        let mut c = vec![Comment {
-                            text: format!(" {removed} (not supported by RepRapFirmware)"),
-                            style: CommentStyle::Semicolon,
-                        }];
-                        c.extend(block.comments.iter().cloned());
-                        comments = std::borrow::Cow::Owned(c);
-                        kept = k;
-                        text = &kept;
-                        if text.is_empty() {
-                            return self.end_line(&comments, false);
-                        }
-                    }
-                    rrf::Unsupported::Keep => {}
+            let msg = format!("`{removed}` is not supported by RepRapFirmware");
+            match unsupported {
+                rrf::Unsupported::Error => {
+                    return Err(Diagnostic::error("rrf::unsupported", msg)
+                        .at_span(block.span)
+                        .with_help("remove it, or set the rrf option `unsupported` to \"comment\" or \"keep\""));
                 }
+                rrf::Unsupported::Comment => {
+                    diags.push(
+                        Diagnostic::warning("rrf::unsupported", msg)
+                            .at_span(block.span)
+                            .with_help("it is written as a comment; set the rrf option `unsupported = \"keep\"` if your macros implement it"),
+                    );
+                    let mut c = vec![Comment {
+                        text: format!(" {removed} (not supported by RepRapFirmware)"),
+                        style: CommentStyle::Semicolon,
+                    }];
+                    c.extend(block.comments.iter().cloned());
+                    comments = std::borrow::Cow::Owned(c);
+                    kept = k;
+                    text = &kept;
+                    if text.is_empty() {
+                        return self.end_line(&comments, false);
+                    }
+                }
+                rrf::Unsupported::Keep => {}
             }
         }
         if let Some(modes) = cmd.modes {
