@@ -200,17 +200,29 @@ impl Model {
         let Target::Joints(to) = &motion.target else {
             return None;
         };
-        let arc = match motion.kind {
+        Some(self.between(from, to, motion.kind, &motion.feed))
+    }
+
+    /// The segment of a move of `kind` at `feed` from `from` to `to` ([`Model::motion`]
+    /// for a pass that has the ends at hand, such as the printed joints of a move).
+    pub fn between(
+        &self,
+        from: &Joints,
+        to: &Joints,
+        kind: MotionKind,
+        feed: &crate::ir::Feed,
+    ) -> Segment {
+        let arc = match kind {
             MotionKind::Arc(a) => Some(a),
             _ => None,
         };
-        let feed = match (motion.kind, motion.feed.mode, motion.feed.rate) {
+        let feed = match (kind, feed.mode, feed.rate) {
             (MotionKind::Rapid, _, _) => None,
             (_, FeedMode::InverseTime, Some(f)) if f > 0.0 => Some(Feed::InverseTime(f)),
             (_, FeedMode::PerMinute, Some(f)) if f > 0.0 => Some(Feed::PerMinute(f)),
             _ => None,
         };
-        Some(self.segment_from(from, to, arc, feed))
+        self.segment_from(from, to, arc, feed)
     }
 
     fn segment_from(
@@ -253,14 +265,22 @@ impl Model {
             if d == 0.0 {
                 continue;
             }
+            // `m / u < v` needs `m · length < v · |d|`: the divisions only where the cap
+            // may be lower (the margin is far beyond rounding, so the result is the same).
+            let limits = |m: f64, v: f64| m * length <= v * d.abs() * (1.0 + 1e-9);
+            let max_speed = self.max_speed[k].filter(|&m| limits(m, v));
+            let accel = self.accel[k].filter(|&a| accelerates && limits(a, seg.accel));
+            if max_speed.is_none() && accel.is_none() {
+                continue;
+            }
             let u = (d / length).abs();
             if u <= 0.0 {
                 continue;
             }
-            if let Some(m) = self.max_speed[k] {
+            if let Some(m) = max_speed {
                 v = v.min(m / u);
             }
-            if accelerates && let Some(a) = self.accel[k] {
+            if let Some(a) = accel {
                 seg.accel = seg.accel.min(a / u);
             }
         }

@@ -495,23 +495,17 @@ impl ValveLookahead {
         self.decimals.and_then(|d| printed(f, d.feed)).unwrap_or(f)
     }
 
-    /// The segment of motion `m` between printed joints.
-    fn segment(&self, m: &Motion, p_from: &Joints, p_to: &Joints) -> Option<Segment> {
-        let probe = Motion {
-            kind: m.kind,
-            target: Target::Joints(*p_to),
-            feed: crate::ir::Feed {
-                mode: m.feed.mode,
-                rate: m.feed.rate.map(|f| self.printed_feed(f)),
-            },
-            written: m.written,
-            machine_frame: m.machine_frame,
-            extra: String::new(),
+    /// The segment of motion `m` between printed joints, at its printed feed.
+    fn segment(&self, m: &Motion, p_from: &Joints, p_to: &Joints) -> Segment {
+        let feed = crate::ir::Feed {
+            mode: m.feed.mode,
+            rate: m.feed.rate.map(|f| self.printed_feed(f)),
         };
-        self.model.motion(p_from, &probe)
+        self.model.between(p_from, p_to, m.kind, &feed)
     }
 
     /// `data` in a box, reusing a spare one.
+    #[inline(always)]
     fn boxed(&mut self, data: MoveData) -> Box<MoveData> {
         match self.spare.pop() {
             Some(mut b) => {
@@ -606,9 +600,7 @@ impl ValveLookahead {
                     };
                     return self.item(block, kind, material > 0.0);
                 }
-                let Some(seg) = self.segment(m, &p_from, &p_to) else {
-                    return self.item(block, Kind::Barrier, false);
-                };
+                let seg = self.segment(m, &p_from, &p_to);
                 let extruding = material > 0.0 && seg.moves();
                 let data = MoveData {
                     from,
@@ -826,8 +818,8 @@ impl ValveLookahead {
                     ma.feed.rate = Some(rate / f);
                     mb.feed.rate = Some(rate / (1.0 - f));
                 }
-                let seg_a = self.segment(&ma, &m.p_from, &p_mid)?;
-                let seg_b = self.segment(&mb, &p_mid, &m.p_to)?;
+                let seg_a = self.segment(&ma, &m.p_from, &p_mid);
+                let seg_b = self.segment(&mb, &p_mid, &m.p_to);
                 let mut ba = it.block.clone();
                 ba.kind = BlockKind::Motion(ma);
                 let mut bb = it.block.clone();
@@ -1387,20 +1379,27 @@ impl ValveLookahead {
             });
         }
         self.check(forced, out);
-        for _ in 0..forced {
-            let Some(it) = self.items.pop_front() else {
-                break;
+        let forced = forced.min(self.items.len());
+        if forced == 0 {
+            return;
+        }
+        // The window's new start: the time and planner state after the last item out
+        // (the last stop or moving move among them decides the state).
+        self.base_time = self.items[forced - 1].end();
+        if let Some(it) = self
+            .items
+            .range(..forced)
+            .rev()
+            .find(|it| it.is_stop() || it.moving().is_some())
+        {
+            self.base_last = match &it.kind {
+                Kind::Move(m) => Some((m.seg, it.speeds.1)),
+                _ => None,
             };
-            self.base_time = it.end();
-            match &it.kind {
-                Kind::Dwell { .. } | Kind::Barrier => self.base_last = None,
-                Kind::Move(m) if m.seg.moves() => {
-                    self.base_last = Some((m.seg, it.speeds.1));
-                }
-                Kind::Marker(id) => {
-                    self.events.remove(id);
-                }
-                _ => {}
+        }
+        for it in self.items.drain(..forced) {
+            if let Kind::Marker(id) = it.kind {
+                self.events.remove(&id);
             }
             out.push(it.block);
             if let Kind::Move(b) = it.kind
