@@ -58,28 +58,34 @@ const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 /// ```
 pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
     let mut u = units.unsigned_abs();
-    let mut frac = decimals.min(9) as usize;
+    let mut frac = decimals.min(9);
     if trim {
         while frac > 0 && u.is_multiple_of(10) {
             u /= 10;
             frac -= 1;
         }
     }
-    let scale = 10u64.pow(frac as u32);
     if units < 0 {
         out.push('-');
     }
-    // Whole part and fraction as integers, printed by itoa (no float formatting, no
-    // per-character pushes).
-    let mut digits = itoa::Buffer::new();
-    out.push_str(digits.format(u / scale));
-    if frac > 0 {
-        let f = digits.format(u % scale);
-        out.push('.');
-        for _ in f.len()..frac {
+    // All digits in one integer print, the point put between them: no division by a
+    // variable power of ten (a 64-bit `div` on every word of every line).
+    let mut buffer = itoa::Buffer::new();
+    let digits = buffer.format(u);
+    let frac = usize::from(frac);
+    if digits.len() > frac {
+        let (whole, fraction) = digits.split_at(digits.len() - frac);
+        out.push_str(whole);
+        if frac > 0 {
+            out.push('.');
+            out.push_str(fraction);
+        }
+    } else {
+        out.push_str("0.");
+        for _ in digits.len()..frac {
             out.push('0');
         }
-        out.push_str(f);
+        out.push_str(digits);
     }
 }
 
