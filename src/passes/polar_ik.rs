@@ -86,8 +86,7 @@ use smallvec::SmallVec;
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Arc, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind,
-    Span, Target,
+    Arc, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind, Span, Target,
 };
 use crate::machine::FeedRule;
 use crate::machine::polar::{OriginPolicy, Polar};
@@ -174,21 +173,6 @@ pub const INFO: PassInfo = PassInfo {
 
 /// Closer than this to the centre (mm) a point is at the centre.
 const ORIGIN_EPS: f64 = 1e-9;
-
-/// The axes F covers under the Euclidean and inverse-time rules: all but the extruder.
-const JOINT_AXES: [Axis; AXIS_COUNT - 1] = {
-    let mut axes = [Axis::X; AXIS_COUNT - 1];
-    let mut i = 0;
-    let mut j = 0;
-    while i < AXIS_COUNT {
-        if !matches!(Axis::ALL[i], Axis::E) {
-            axes[j] = Axis::ALL[i];
-            j += 1;
-        }
-        i += 1;
-    }
-    axes
-};
 
 /// `√(8 / (3√3))`: the peak angular acceleration of a line passed at speed v and distance
 /// d is `(3√3 / 8) v² / d²`, so `α ≤ α_max` means `v ≤ 1.2408 d √α_max`.
@@ -650,21 +634,29 @@ impl PolarIk {
 
     /// The controller's distance for F between two emitted joint vectors.
     fn joint_distance(&self, a: &Joints, b: &Joints) -> f64 {
-        let delta = |axis: Axis| match (a.get(axis), b.get(axis)) {
-            (Some(x), Some(y)) => y - x,
-            _ => 0.0,
+        // Axes known at both ends, in index order (unknown ones add nothing): this runs
+        // for every piece.
+        let both = a.known.intersection(b.known);
+        let norm = |axes: AxisSet| {
+            let mut sum = 0.0;
+            for x in both.intersection(axes).iter() {
+                let d = b.values[x.index()] - a.values[x.index()];
+                sum += d * d;
+            }
+            f64::sqrt(sum)
         };
-        let norm = |axes: &[Axis]| axes.iter().map(|&x| delta(x).powi(2)).sum::<f64>().sqrt();
         match self.polar.controller.feed_rule {
             FeedRule::Nist => {
-                let xyz = norm(&[Axis::X, Axis::Y, Axis::Z]);
+                let xyz = norm(AxisSet::XYZ);
                 if xyz > 0.0 {
                     xyz
                 } else {
-                    norm(&[Axis::A, Axis::B, Axis::C])
+                    norm(AxisSet::from_iter([Axis::A, Axis::B, Axis::C]))
                 }
             }
-            FeedRule::Euclidean | FeedRule::InverseTime => norm(&JOINT_AXES),
+            FeedRule::Euclidean | FeedRule::InverseTime => {
+                norm(AxisSet::ALL.difference(AxisSet::from_iter([Axis::E])))
+            }
         }
     }
 
@@ -925,14 +917,22 @@ impl PolarIk {
             self.check_reach(&piece.to, block.span, out);
             let input = lerp(from, to, piece.s);
             let joints = self.emitted(&input, &piece.to);
-            let mut motion = m.clone();
-            motion.kind = if rapid {
-                MotionKind::Rapid
-            } else {
-                MotionKind::Linear
+            let mut motion = Motion {
+                kind: if rapid {
+                    MotionKind::Rapid
+                } else {
+                    MotionKind::Linear
+                },
+                target: Target::Joints(joints),
+                feed: m.feed,
+                written,
+                machine_frame: m.machine_frame,
+                extra: if m.extra.is_empty() {
+                    String::new()
+                } else {
+                    m.extra.clone()
+                },
             };
-            motion.target = Target::Joints(joints);
-            motion.written = written;
             if !rapid {
                 let seconds = if piece.rotate {
                     (piece.to.theta - prev_node.theta).abs() / self.polar.omega_max.to_radians()
