@@ -629,9 +629,7 @@ impl ExtrudeRate {
                 limited = true;
             }
         }
-        let mut probe = m.clone();
-        probe.target = Target::Joints(*to);
-        let seg = self.model.motion(from, &probe)?;
+        let seg = self.model.between(from, to, m.kind, &m.feed);
         if seg.length <= 0.0 || seconds <= 0.0 {
             return None;
         }
@@ -651,8 +649,7 @@ impl ExtrudeRate {
         }
         m.feed.mode = mode;
         m.feed.rate = Some(rate);
-        probe.feed = m.feed;
-        let seg = self.model.motion(from, &probe)?;
+        let seg = self.model.between(from, to, m.kind, &m.feed);
         let wanted = match mode {
             FeedMode::InverseTime => seg.length * rate / 60.0,
             _ => rate / 60.0,
@@ -666,8 +663,7 @@ impl ExtrudeRate {
                 _ => seg.v_max * 60.0,
             };
             m.feed.rate = Some(self.printed_feed(real));
-            probe.feed = m.feed;
-            return Some((self.model.motion(from, &probe)?, limited));
+            return Some((self.model.between(from, to, m.kind, &m.feed), limited));
         }
         Some((seg, limited))
     }
@@ -714,19 +710,7 @@ impl ExtrudeRate {
                 if let Some(f) = m.feed.rate {
                     m.feed.rate = Some(self.printed_feed(f));
                 }
-                let seg = {
-                    let target = std::mem::replace(&mut m.target, Target::Joints(p_to));
-                    let seg = self.model.motion(&p_from, m);
-                    m.target = target;
-                    seg
-                };
-                let Some(mut seg) = seg else {
-                    self.queue.push_other(Item {
-                        block,
-                        role: Role::Pass,
-                    });
-                    return;
-                };
+                let mut seg = self.model.between(&p_from, &p_to, m.kind, &m.feed);
                 let moves = seg.length > 0.0 && !m.written.is_empty();
                 // Material: what the slicer pushes beyond the retraction still pending.
                 let material = if de < 0.0 {
