@@ -615,10 +615,16 @@ impl PolarIk {
     /// Input joints with X/Y replaced by r and θ (degrees).
     fn emitted(&self, j: &Joints, p: &PolarPoint) -> Joints {
         let mut out = *j;
-        out.forget(AxisSet::from_iter([Axis::X, Axis::Y]));
-        out.set(self.polar.r_axis, p.r);
-        out.set(self.polar.theta_axis, p.theta.to_degrees());
+        self.to_polar(&mut out, p);
         out
+    }
+
+    /// [`Self::emitted`] in place: for the pieces of a move, whose joints are built just
+    /// before (a copy of joints just written stalls on store forwarding).
+    fn to_polar(&self, j: &mut Joints, p: &PolarPoint) {
+        j.forget(AxisSet::from_iter([Axis::X, Axis::Y]));
+        j.set(self.polar.r_axis, p.r);
+        j.set(self.polar.theta_axis, p.theta.to_degrees());
     }
 
     fn map_axes(&self, set: AxisSet) -> AxisSet {
@@ -915,8 +921,8 @@ impl PolarIk {
         let count = pieces.len();
         for (i, piece) in pieces.iter().enumerate() {
             self.check_reach(&piece.to, block.span, out);
-            let input = lerp(from, to, piece.s);
-            let joints = self.emitted(&input, &piece.to);
+            let mut joints = lerp(from, to, piece.s);
+            self.to_polar(&mut joints, &piece.to);
             let mut motion = Motion {
                 kind: if rapid {
                     MotionKind::Rapid

@@ -504,15 +504,32 @@ impl ValveLookahead {
         self.model.between(p_from, p_to, m.kind, &feed)
     }
 
-    /// `data` in a box, reusing a spare one.
-    #[inline(always)]
-    fn boxed(&mut self, data: MoveData) -> Box<MoveData> {
+    /// A move's data in a box, reusing a spare one (written field by field: a whole
+    /// `MoveData` built first and then moved in stalls on the copy).
+    fn boxed(
+        &mut self,
+        from: Joints,
+        to: Joints,
+        p_from: Joints,
+        p_to: Joints,
+        seg: Segment,
+    ) -> Box<MoveData> {
         match self.spare.pop() {
             Some(mut b) => {
-                *b = data;
+                b.from = from;
+                b.to = to;
+                b.p_from = p_from;
+                b.p_to = p_to;
+                b.seg = seg;
                 b
             }
-            None => Box::new(data),
+            None => Box::new(MoveData {
+                from,
+                to,
+                p_from,
+                p_to,
+                seg,
+            }),
         }
     }
 
@@ -530,8 +547,9 @@ impl ValveLookahead {
         }
     }
 
-    /// Turns an input block into a window item, tracking position and retraction.
-    fn classify(&mut self, block: Block, out: &mut Output<'_>) -> Item {
+    /// What an input block is in the window (its kind, and whether it extrudes),
+    /// tracking position and retraction.
+    fn classify(&mut self, block: &Block, out: &mut Output<'_>) -> (Kind, bool) {
         match &block.kind {
             BlockKind::Motion(m) => {
                 let Target::Joints(to) = m.target else {
@@ -546,12 +564,12 @@ impl ValveLookahead {
                         .at_span(span)
                         .with_help("run valve-lookahead after inverse kinematics")
                     });
-                    return self.item(block, Kind::Barrier, false);
+                    return (Kind::Barrier, false);
                 };
                 if m.machine_frame {
                     self.pos.forget(m.written);
                     self.p_cache = None;
-                    return self.item(block, Kind::Barrier, false);
+                    return (Kind::Barrier, false);
                 }
                 let from = self.pos;
                 let mut next = from;
@@ -575,7 +593,14 @@ impl ValveLookahead {
                     _ => self.printed(&from),
                 };
                 let p_to = self.printed_reusing(&next, self.p_cache.as_ref());
-                self.p_cache = Some((next, p_to));
+                // Overwritten in place: a new pair built and moved in is a 176-byte copy.
+                match &mut self.p_cache {
+                    Some((j, p)) => {
+                        *j = next;
+                        *p = p_to;
+                    }
+                    None => self.p_cache = Some((next, p_to)),
+                }
                 self.pos = next;
                 let material = if de < 0.0 {
                     self.pending -= de;
@@ -598,47 +623,38 @@ impl ValveLookahead {
                     } else {
                         Kind::Other
                     };
-                    return self.item(block, kind, material > 0.0);
+                    return (kind, material > 0.0);
                 }
                 let seg = self.segment(m, &p_from, &p_to);
                 let extruding = material > 0.0 && seg.moves();
-                let data = MoveData {
-                    from,
-                    to: next,
-                    p_from,
-                    p_to,
-                    seg,
-                };
-                let kind = Kind::Move(self.boxed(data));
-                self.item(block, kind, extruding)
-            }
-            BlockKind::Dwell { seconds } => {
-                let s = *seconds;
-                self.item(
-                    block,
-                    Kind::Dwell {
-                        seconds: s,
-                        owner: None,
-                    },
-                    false,
+                (
+                    Kind::Move(self.boxed(from, next, p_from, p_to, seg)),
+                    extruding,
                 )
             }
+            BlockKind::Dwell { seconds } => (
+                Kind::Dwell {
+                    seconds: *seconds,
+                    owner: None,
+                },
+                false,
+            ),
             BlockKind::Command(c) if !c.clobbers.is_empty() => {
                 self.pos.forget(c.clobbers);
                 self.p_cache = None;
-                self.item(block, Kind::Barrier, false)
+                (Kind::Barrier, false)
             }
             BlockKind::Verbatim(v) => {
                 self.pos.forget(v.clobbers);
                 self.p_cache = None;
-                self.item(block, Kind::Barrier, false)
+                (Kind::Barrier, false)
             }
             BlockKind::Offset(o) => {
                 self.offsets = o.offsets;
                 self.p_cache = None;
-                self.item(block, Kind::Other, false)
+                (Kind::Other, false)
             }
-            _ => self.item(block, Kind::Other, false),
+            _ => (Kind::Other, false),
         }
     }
 
@@ -1246,25 +1262,40 @@ impl ValveLookahead {
         self.in_run = false;
     }
 
-    fn push(&mut self, item: Item, out: &mut Output<'_>) {
-        let cv = match &item.kind {
+    /// Adds an input block of `kind` to the window (the item is built where it is kept:
+    /// the block is moved once) and starts or ends runs and their events. Inlined into
+    /// its one caller, so the block does not stop in this call's arguments either.
+    #[inline(always)]
+    fn push(&mut self, block: Block, kind: Kind, extruding: bool, out: &mut Output<'_>) {
+        let cv = match &kind {
             Kind::Move(m) if m.seg.moves() => m.seg.length / m.seg.v_max,
             Kind::Dwell { seconds, .. } => *seconds,
             _ => 0.0,
         };
-        let barrier = matches!(item.kind, Kind::Barrier);
+        let barrier = matches!(kind, Kind::Barrier);
         let breaks = barrier || cv > 0.0;
-        let extruding = item.extruding;
-        let (start_id, end_id, span) = (item.start_id, item.end_id, item.block.span);
-        let mut item = item;
-        if self.window == 0 && !self.dirty {
+        let id = self.fresh();
+        let (start_id, end_id, span) = (id, id, block.span);
+        let (start, dur) = if self.window == 0 && !self.dirty {
             // Constant velocity: the new block's time follows from the last one's.
-            item.start = self.items.back().map_or(self.base_time, Item::end);
-            item.dur = cv_duration(&item.kind);
+            (
+                self.items.back().map_or(self.base_time, Item::end),
+                cv_duration(&kind),
+            )
         } else {
             self.dirty = true;
-        }
-        self.items.push_back(item);
+            (0.0, 0.0)
+        };
+        self.items.push_back(Item {
+            block,
+            kind,
+            extruding,
+            start_id,
+            end_id,
+            start,
+            dur,
+            speeds: (0.0, 0.0),
+        });
         if extruding {
             if !self.in_run {
                 if self.close_pending && !barrier {
@@ -1443,8 +1474,8 @@ impl Pass for ValveLookahead {
     }
 
     fn run(&mut self, block: Block, out: &mut Output<'_>) {
-        let item = self.classify(block, out);
-        self.push(item, out);
+        let (kind, extruding) = self.classify(&block, out);
+        self.push(block, kind, extruding, out);
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {
