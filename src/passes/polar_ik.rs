@@ -14,10 +14,10 @@
 //! curve whose second derivative is bounded by `M` stays within `M / 8` of its chord;
 //! every emitted node is the exact inverse kinematics of a point on the programmed line, so
 //! the chord lies on the line and the whole joint-linear piece is within
-//! `|Δθ| √((r Δθ)² + (2 Δr)²) / 8` of it. On short pieces the bound is within 6 % of the
-//! true distance (the part of `q''` along the chord is what it overstates); the sum
-//! `r Δθ² + 2 |Δr Δθ|` first used here overstated it by up to 41 %, and cut about 12 %
-//! more pieces on a real print. A move
+//! `|Δθ| √((r Δθ)² + (2 Δr)²) / 8` of it. On short pieces the bound is at most about 6 %
+//! above the true distance (what it overstates is the part of `q''` along the chord;
+//! `tests/polar.rs` checks 10 %); the sum `r Δθ² + 2 |Δr Δθ|` first used here overstated
+//! it by up to 41 %, and gave 10 % more output lines on the bench print. A move
 //! is cut into pieces that each satisfy `bound ≤ tolerance` (0.01 mm by default), each
 //! piece as long as the bound allows: from the last node, a few regula-falsi steps on
 //! `√bound` (about linear in the piece's length) find where the bound reaches 90–100 % of
