@@ -700,14 +700,7 @@ impl ExtrudeRate {
                     if m.machine_frame { &to } else { &next },
                     self.p_cache.as_ref(),
                 );
-                // Overwritten in place: a new pair built and moved in is a 176-byte copy.
-                match &mut self.p_cache {
-                    Some((j, p)) => {
-                        *j = next;
-                        *p = p_to;
-                    }
-                    None => self.p_cache = Some((next, p_to)),
-                }
+                crate::back::remember_printed(&mut self.p_cache, next, p_to);
                 self.pos = next;
                 // Drop E from the move.
                 if let Some(j) = m.target.joints_mut() {

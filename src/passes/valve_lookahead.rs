@@ -593,14 +593,7 @@ impl ValveLookahead {
                     _ => self.printed(&from),
                 };
                 let p_to = self.printed_reusing(&next, self.p_cache.as_ref());
-                // Overwritten in place: a new pair built and moved in is a 176-byte copy.
-                match &mut self.p_cache {
-                    Some((j, p)) => {
-                        *j = next;
-                        *p = p_to;
-                    }
-                    None => self.p_cache = Some((next, p_to)),
-                }
+                crate::back::remember_printed(&mut self.p_cache, next, p_to);
                 self.pos = next;
                 let material = if de < 0.0 {
                     self.pending -= de;
