@@ -191,6 +191,28 @@ pub struct Joints {
 }
 
 impl Joints {
+    /// The same axes known, at the same values; what unknown axes hold is not compared
+    /// (zero by invariant 3). Cheaper than `==` on the hot paths that ask whether a
+    /// position is the one they saw last.
+    ///
+    /// ```
+    /// use ncpost::ir::{Axis, Joints};
+    /// let mut a = Joints::default();
+    /// a.set(Axis::X, 1.0);
+    /// let mut b = a;
+    /// assert!(a.same_known(&b));
+    /// b.set(Axis::Y, 0.0);
+    /// assert!(!a.same_known(&b));
+    /// ```
+    #[inline]
+    pub fn same_known(&self, other: &Joints) -> bool {
+        self.known == other.known
+            && self
+                .known
+                .iter()
+                .all(|a| self.values[a.index()] == other.values[a.index()])
+    }
+
     /// The value of `axis`, if known.
     pub fn get(&self, axis: Axis) -> Option<f64> {
         self.known.contains(axis).then(|| self.values[axis.index()])

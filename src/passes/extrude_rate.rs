@@ -693,7 +693,7 @@ impl ExtrudeRate {
                 }
                 // The last block's printed end is this one's start (most of the time).
                 let p_from = match self.p_cache {
-                    Some((j, p)) if j == from => p,
+                    Some((j, p)) if j.same_known(&from) => p,
                     _ => self.printed(&from),
                 };
                 let p_to = self.printed_reusing(

@@ -862,7 +862,8 @@ impl PolarIk {
             _ => 0.0,
         };
         let xy_len = (p1 - p0).norm();
-        let cart_len = xy_len.hypot(dz);
+        // `hypot(x, 0)` is `|x|` exactly: no libm call for the usual move in a layer.
+        let cart_len = if dz == 0.0 { xy_len } else { xy_len.hypot(dz) };
         // The programmed XY(Z) speed, mm/s, or the programmed time of this piece.
         let speed = match (m.feed.mode, m.feed.rate) {
             (FeedMode::PerMinute, Some(f)) if f > 0.0 && !rapid => Some(f / 60.0),

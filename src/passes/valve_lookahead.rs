@@ -589,7 +589,7 @@ impl ValveLookahead {
                             }
                     });
                 let p_from = match self.p_cache {
-                    Some((j, p)) if j == from => p,
+                    Some((j, p)) if j.same_known(&from) => p,
                     _ => self.printed(&from),
                 };
                 let p_to = self.printed_reusing(&next, self.p_cache.as_ref());
