@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, Block, BlockKind, Comment, CommentStyle, FeedMode, Joints, Motion,
+    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Comment, CommentStyle, FeedMode, Joints, Motion,
     MotionKind, OffsetChange, Plane, Target,
 };
 use number::{to_units, write_units};
@@ -82,13 +82,14 @@ impl Decimals {
         seen: Option<&(Joints, Joints)>,
     ) -> Joints {
         let mut p = *j;
+        // The axes `seen` has a printed value for, as one set (not three tests per axis).
+        let (reusable, key, printed) = match seen {
+            Some((key, printed)) => (key.known.intersection(printed.known), key, printed),
+            None => (AxisSet::EMPTY, j, j),
+        };
         for a in j.known.iter() {
             let i = a.index();
-            if let Some((key, printed)) = seen
-                && key.known.contains(a)
-                && printed.known.contains(a)
-                && key.values[i] == j.values[i]
-            {
+            if reusable.contains(a) && key.values[i] == j.values[i] {
                 p.values[i] = printed.values[i];
             } else if let Some(v) = number::printed(j.values[i] + offsets[i], self.axis(a)) {
                 p.values[i] = v - offsets[i];
