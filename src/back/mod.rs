@@ -712,66 +712,62 @@ impl<W: Write> Emitter<W> {
     ) -> Result<(), Diagnostic> {
         let mut text = cmd.text.as_str();
         let mut comments = std::borrow::Cow::Borrowed(&block.comments[..]);
-        let kept;
-        let kept_grbl;
-        if let Flavor::Grbl(g) = self.flavor {
-            if cmd.text.split_whitespace().any(grbl::is_subprogram_word) {
-                return Err(grbl_subprogram(block, &cmd.text));
-            }
-            let (k, removed) = grbl::split_words(&cmd.text, &g);
-            if !removed.is_empty() {
-                let msg = format!("`{removed}` is not supported by Grbl 1.1");
-                match g.unsupported {
-                    rrf::Unsupported::Error => {
-                        return Err(Diagnostic::error("grbl::unsupported", msg)
-                            .at_span(block.span)
-                            .with_help("remove it, or set the grbl option `unsupported` to \"comment\" or \"keep\""));
-                    }
-                    rrf::Unsupported::Comment => {
-                        diags.push(
-                            Diagnostic::warning("grbl::unsupported", msg)
-                                .at_span(block.span)
-                                .with_help("it is written as a comment; set the grbl option `unsupported = \"keep\"` for a build that runs it (grblHAL)"),
-                        );
-                        let mut c = vec![Comment {
+        // The words this firmware does not run (the rest of the command kept), with what
+        // the policy says about them in its terms; most commands have none and are
+        // checked without allocating.
+        let split = match self.flavor {
+            Flavor::Grbl(g) => {
+                if cmd.text.split_whitespace().any(grbl::is_subprogram_word) {
+                    return Err(grbl_subprogram(block, &cmd.text));
+                }
+                let (k, removed) = grbl::split_words(&cmd.text, &g);
+                (!removed.is_empty()).then(|| {
+                    let wording = Unsupported {
+                        code: "grbl::unsupported",
+                        firmware: "Grbl 1.1",
+                        option: "grbl",
+                        keep_help: "for a build that runs it (grblHAL)",
+                        note: |removed| Comment {
                             text: format!("{removed}: not supported by Grbl"),
                             style: CommentStyle::Paren,
-                        }];
-                        c.extend(block.comments.iter().cloned());
-                        comments = std::borrow::Cow::Owned(c);
-                        kept_grbl = k;
-                        text = &kept_grbl;
-                        if text.is_empty() {
-                            return self.end_line(&comments, false);
-                        }
-                    }
-                    rrf::Unsupported::Keep => {}
-                }
+                        },
+                    };
+                    (k, removed, g.unsupported, wording)
+                })
             }
-        }
-        // Most commands have nothing to remove: they are checked without allocating.
-        if let Flavor::Rrf { unsupported, .. } = self.flavor
-            && rrf::any_unsupported(&cmd.text)
-        {
             // `any_unsupported` holds exactly when the split removes something.
-            let (k, removed) = rrf::split_unsupported(&cmd.text);
-            let msg = format!("`{removed}` is not supported by RepRapFirmware");
-            match unsupported {
+            Flavor::Rrf { unsupported, .. } if rrf::any_unsupported(&cmd.text) => {
+                let (k, removed) = rrf::split_unsupported(&cmd.text);
+                let wording = Unsupported {
+                    code: "rrf::unsupported",
+                    firmware: "RepRapFirmware",
+                    option: "rrf",
+                    keep_help: "if your macros implement it",
+                    note: |removed| Comment {
+                        text: format!(" {removed} (not supported by RepRapFirmware)"),
+                        style: CommentStyle::Semicolon,
+                    },
+                };
+                Some((k, removed, unsupported, wording))
+            }
+            _ => None,
+        };
+        let kept;
+        if let Some((k, removed, policy, wording)) = split {
+            let msg = format!("`{removed}` is not supported by {}", wording.firmware);
+            match policy {
                 rrf::Unsupported::Error => {
-                    return Err(Diagnostic::error("rrf::unsupported", msg)
+                    return Err(Diagnostic::error(wording.code, msg)
                         .at_span(block.span)
-                        .with_help("remove it, or set the rrf option `unsupported` to \"comment\" or \"keep\""));
+                        .with_help(format!("remove it, or set the {} option `unsupported` to \"comment\" or \"keep\"", wording.option)));
                 }
                 rrf::Unsupported::Comment => {
                     diags.push(
-                        Diagnostic::warning("rrf::unsupported", msg)
+                        Diagnostic::warning(wording.code, msg)
                             .at_span(block.span)
-                            .with_help("it is written as a comment; set the rrf option `unsupported = \"keep\"` if your macros implement it"),
+                            .with_help(format!("it is written as a comment; set the {} option `unsupported = \"keep\"` {}", wording.option, wording.keep_help)),
                     );
-                    let mut c = vec![Comment {
-                        text: format!(" {removed} (not supported by RepRapFirmware)"),
-                        style: CommentStyle::Semicolon,
-                    }];
+                    let mut c = vec![(wording.note)(&removed)];
                     c.extend(block.comments.iter().cloned());
                     comments = std::borrow::Cow::Owned(c);
                     kept = k;
@@ -1013,6 +1009,18 @@ impl<W: Write> Emitter<W> {
 }
 
 /// Grbl has no subprograms: a call, return or body left in the IR.
+/// How a firmware's unsupported words are reported and noted.
+struct Unsupported {
+    code: &'static str,
+    firmware: &'static str,
+    /// The backend's options table, for the help.
+    option: &'static str,
+    /// Why one would keep the words anyway.
+    keep_help: &'static str,
+    /// The comment that takes the removed words' place.
+    note: fn(&str) -> Comment,
+}
+
 fn grbl_subprogram(block: &Block, text: &str) -> Diagnostic {
     Diagnostic::error(
         "grbl::subprogram",
