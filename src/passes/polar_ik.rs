@@ -924,23 +924,9 @@ impl PolarIk {
             self.check_reach(&piece.to, block.span, out);
             let mut joints = lerp(from, to, piece.s);
             self.to_polar(&mut joints, &piece.to);
-            let mut motion = Motion {
-                kind: if rapid {
-                    MotionKind::Rapid
-                } else {
-                    MotionKind::Linear
-                },
-                target: Target::Joints(joints),
-                feed: m.feed,
-                written,
-                machine_frame: m.machine_frame,
-                extra: if m.extra.is_empty() {
-                    String::new()
-                } else {
-                    m.extra.clone()
-                },
-            };
-            if !rapid {
+            let feed = if rapid {
+                m.feed
+            } else {
                 let seconds = if piece.rotate {
                     (piece.to.theta - prev_node.theta).abs() / self.polar.omega_max.to_radians()
                 } else {
@@ -963,13 +949,36 @@ impl PolarIk {
                         None => 0.0,
                     }
                 };
-                motion.feed = self.feed_for(&m.feed, &prev_joints, &joints, seconds);
-            }
-            let mut b = Block::new(block.span, BlockKind::Motion(motion));
-            if last && i + 1 == count {
-                b.comments.clone_from(&block.comments);
-            }
-            out.push(b);
+                self.feed_for(&m.feed, &prev_joints, &joints, seconds)
+            };
+            let comments = if last && i + 1 == count {
+                block.comments.clone()
+            } else {
+                Vec::new()
+            };
+            // Built in one expression where it is pushed: the block is written in its
+            // slot, not built on the stack and copied (a copy of freshly written fields
+            // stalls on store forwarding).
+            out.push(Block {
+                span: block.span,
+                kind: BlockKind::Motion(Motion {
+                    kind: if rapid {
+                        MotionKind::Rapid
+                    } else {
+                        MotionKind::Linear
+                    },
+                    target: Target::Joints(joints),
+                    feed,
+                    written,
+                    machine_frame: m.machine_frame,
+                    extra: if m.extra.is_empty() {
+                        String::new()
+                    } else {
+                        m.extra.clone()
+                    },
+                }),
+                comments,
+            });
             prev_s = piece.s;
             prev_node = piece.to;
             prev_joints = joints;
