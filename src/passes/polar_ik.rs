@@ -951,11 +951,6 @@ impl PolarIk {
                 };
                 self.feed_for(&m.feed, &prev_joints, &joints, seconds)
             };
-            let comments = if last && i + 1 == count {
-                block.comments.clone()
-            } else {
-                Vec::new()
-            };
             // Built in one expression where it is pushed: the block is written in its
             // slot, not built on the stack and copied (a copy of freshly written fields
             // stalls on store forwarding).
@@ -977,8 +972,16 @@ impl PolarIk {
                         m.extra.clone()
                     },
                 }),
-                comments,
+                comments: Vec::new(),
             });
+            // The comments go on the last piece where it lies: a vector made beforehand
+            // would be copied in as one 16-byte load of two 8-byte stores, a stall.
+            if last
+                && i + 1 == count
+                && let Some(b) = out.blocks.last_mut()
+            {
+                b.comments.clone_from(&block.comments);
+            }
             prev_s = piece.s;
             prev_node = piece.to;
             prev_joints = joints;

@@ -552,7 +552,7 @@ impl ValveLookahead {
     fn classify(&mut self, block: &Block, out: &mut Output<'_>) -> (Kind, bool) {
         match &block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(to) = m.target else {
+                let Target::Joints(to) = &m.target else {
                     self.pos.forget(m.written);
                     self.p_cache = None;
                     let span = block.span;
