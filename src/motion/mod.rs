@@ -234,10 +234,13 @@ impl Model {
     ) -> Segment {
         // Axes known at both ends move by the difference, the others not at all.
         let both = from.known.intersection(to.known);
+        // Every axis, selected without a branch: the distance below then reads the
+        // differences from registers. Written per known axis, they were read back as
+        // pairs that straddled two single stores, and every segment waited on that.
         let mut delta = [0.0; AXIS_COUNT];
-        for a in both.iter() {
-            let k = a.index();
-            delta[k] = to.values[k] - from.values[k];
+        for (k, d) in delta.iter_mut().enumerate() {
+            let diff = to.values[k] - from.values[k];
+            *d = if both.contains(Axis::ALL[k]) { diff } else { 0.0 };
         }
         let arc_len = arc.map(|a| arc_length(from, to, &a));
         let length = rule_distance(self.rule, &delta, arc_len);
