@@ -240,7 +240,11 @@ impl Model {
         let mut delta = [0.0; AXIS_COUNT];
         for (k, d) in delta.iter_mut().enumerate() {
             let diff = to.values[k] - from.values[k];
-            *d = if both.contains(Axis::ALL[k]) { diff } else { 0.0 };
+            *d = if both.contains(Axis::ALL[k]) {
+                diff
+            } else {
+                0.0
+            };
         }
         let arc_len = arc.map(|a| arc_length(from, to, &a));
         let length = rule_distance(self.rule, &delta, arc_len);

@@ -86,7 +86,8 @@ use smallvec::SmallVec;
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    Arc, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind, Span, Target,
+    AXIS_COUNT, Arc, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind,
+    Span, Target,
 };
 use crate::machine::FeedRule;
 use crate::machine::polar::{OriginPolicy, Polar};
@@ -555,6 +556,7 @@ pub fn arc_points(from: &Joints, to: &Joints, arc: &Arc, tolerance: f64) -> Vec<
 
 /// Joints at `t` of the way from `a` to `b` (axes known in `b`; those unknown in `a` take
 /// `b`'s value).
+#[cfg(test)]
 fn lerp(a: &Joints, b: &Joints, t: f64) -> Joints {
     let mut j = *b;
     for axis in b.known.iter() {
@@ -619,8 +621,37 @@ impl PolarIk {
         out
     }
 
-    /// [`Self::emitted`] in place: for the pieces of a move, whose joints are built just
-    /// before (a copy of joints just written stalls on store forwarding).
+    /// The joints of a piece ending at `t` of the way from `from` to `to`, at polar point
+    /// `p`: the other axes interpolated (those unknown in `from` take `to`'s value), r and
+    /// θ set. One select per axis and no branch, so that the block the joints go into
+    /// copies them from whole stores (a copy of values written one by one at varying
+    /// indices waits on store forwarding). The same values as `lerp` then
+    /// [`Self::to_polar`], which the tests check.
+    fn piece_joints(&self, from: &Joints, to: &Joints, t: f64, p: &PolarPoint) -> Joints {
+        let both = from.known.intersection(to.known);
+        let (r_axis, theta_axis) = (self.polar.r_axis, self.polar.theta_axis);
+        let theta = p.theta.to_degrees();
+        let mut values = [0.0; AXIS_COUNT];
+        for (k, v) in values.iter_mut().enumerate() {
+            let axis = Axis::ALL[k];
+            let (va, vb) = (from.values[k], to.values[k]);
+            let mixed = if t >= 1.0 { vb } else { va + (vb - va) * t };
+            let moved = if both.contains(axis) { mixed } else { vb };
+            let planar = if matches!(axis, Axis::X | Axis::Y) {
+                0.0
+            } else {
+                moved
+            };
+            let radial = if axis == r_axis { p.r } else { planar };
+            *v = if axis == theta_axis { theta } else { radial };
+        }
+        let mut known = to.known.difference(AxisSet::from_iter([Axis::X, Axis::Y]));
+        known.insert(r_axis);
+        known.insert(theta_axis);
+        Joints { values, known }
+    }
+
+    /// [`Self::emitted`] in place.
     fn to_polar(&self, j: &mut Joints, p: &PolarPoint) {
         j.forget(AxisSet::from_iter([Axis::X, Axis::Y]));
         j.set(self.polar.r_axis, p.r);
@@ -922,8 +953,7 @@ impl PolarIk {
         let count = pieces.len();
         for (i, piece) in pieces.iter().enumerate() {
             self.check_reach(&piece.to, block.span, out);
-            let mut joints = lerp(from, to, piece.s);
-            self.to_polar(&mut joints, &piece.to);
+            let joints = self.piece_joints(from, to, piece.s, &piece.to);
             let feed = if rapid {
                 m.feed
             } else {
@@ -1114,6 +1144,47 @@ impl Pass for PolarIk {
                 });
             }
             kind => out.push(Block { kind, ..block }),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    proptest::proptest! {
+        /// A piece's joints are those of interpolating the move and then setting r and θ,
+        /// bit for bit, whatever axes either end knows.
+        #[test]
+        fn piece_joints_are_lerp_then_to_polar(
+            from_values in proptest::array::uniform10(-500.0f64..500.0),
+            to_values in proptest::array::uniform10(-500.0f64..500.0),
+            from_known in 0u16..1024,
+            to_known in 0u16..1024,
+            t in proptest::sample::select(vec![0.0, 0.25, 0.5, 0.999, 1.0]),
+            r in -150.0f64..150.0,
+            theta in -20.0f64..20.0,
+        ) {
+            let joints = |values: [f64; AXIS_COUNT], known: u16| {
+                let mut j = Joints::default();
+                for (k, &v) in values.iter().enumerate() {
+                    if known & (1 << k) != 0 {
+                        j.set(Axis::ALL[k], v);
+                    }
+                }
+                j
+            };
+            let from = joints(from_values, from_known);
+            let to = joints(to_values, to_known);
+            let ik = PolarIk::new(Polar::default(), Options::default()).unwrap();
+            let p = PolarPoint { r, theta };
+            let mut expected = lerp(&from, &to, t);
+            ik.to_polar(&mut expected, &p);
+            let got = ik.piece_joints(&from, &to, t, &p);
+            proptest::prop_assert_eq!(got.known, expected.known);
+            for k in 0..AXIS_COUNT {
+                proptest::prop_assert_eq!(got.values[k].to_bits(), expected.values[k].to_bits(), "axis {}", k);
+            }
         }
     }
 }
