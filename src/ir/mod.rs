@@ -213,6 +213,39 @@ impl Joints {
                 .all(|a| self.values[a.index()] == other.values[a.index()])
     }
 
+    /// These joints with every axis `update` knows taken from it: where a move to
+    /// `update` ends.
+    ///
+    /// One select per axis, without a branch: the result is then copied from whole
+    /// stores (values written one by one at varying indices and then copied wait on
+    /// store forwarding, on every move of the timing passes).
+    ///
+    /// ```
+    /// use ncpost::ir::{Axis, Joints};
+    /// let mut at = Joints::default();
+    /// at.set(Axis::X, 1.0);
+    /// at.set(Axis::Y, 2.0);
+    /// let mut to = Joints::default();
+    /// to.set(Axis::Y, 5.0);
+    /// to.set(Axis::E, 0.5);
+    /// let end = at.updated_by(&to);
+    /// assert_eq!((end.get(Axis::X), end.get(Axis::Y), end.get(Axis::E)), (Some(1.0), Some(5.0), Some(0.5)));
+    /// assert_eq!(end.get(Axis::Z), None);
+    /// ```
+    #[inline]
+    pub fn updated_by(&self, update: &Joints) -> Joints {
+        let mut values = self.values;
+        for (k, v) in values.iter_mut().enumerate() {
+            if update.known.contains(Axis::ALL[k]) {
+                *v = update.values[k];
+            }
+        }
+        Joints {
+            values,
+            known: self.known.union(update.known),
+        }
+    }
+
     /// The value of `axis`, if known.
     pub fn get(&self, axis: Axis) -> Option<f64> {
         self.known.contains(axis).then(|| self.values[axis.index()])

@@ -684,10 +684,7 @@ impl ExtrudeRate {
                     (Some(a), Some(b)) => b - a,
                     _ => 0.0,
                 };
-                let mut next = self.pos;
-                for a in to.known.iter() {
-                    next.set(a, to.values[a.index()]);
-                }
+                let mut next = self.pos.updated_by(&to);
                 if m.machine_frame {
                     next.forget(m.written);
                 }

@@ -572,10 +572,7 @@ impl ValveLookahead {
                     return (Kind::Barrier, false);
                 }
                 let from = self.pos;
-                let mut next = from;
-                for a in to.known.iter() {
-                    next.set(a, to.values[a.index()]);
-                }
+                let next = from.updated_by(to);
                 let de = match (from.get(Axis::E), next.get(Axis::E)) {
                     (Some(a), Some(b)) => b - a,
                     _ => 0.0,
