@@ -857,7 +857,12 @@ impl PolarIk {
             }
             _ => std::slice::from_ref(&to),
         };
-        let total = arc_length(&from, points);
+        // Only an inverse-time feed needs the whole move's length (a `sqrt` per move).
+        let total = if m.feed.mode == FeedMode::InverseTime {
+            arc_length(&from, points)
+        } else {
+            0.0
+        };
         let n = points.len();
         let mut start = from;
         let mut node = node;
