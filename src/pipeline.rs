@@ -569,9 +569,7 @@ impl Part<'_> {
             // A pass that only reads the blocks looks at them where they lie.
             if !pass.observe(cur, diags) {
                 next.clear();
-                for b in cur.drain(..) {
-                    pass.run(b, &mut Output::new(next, diags));
-                }
+                pass.run_batch(cur, &mut Output::new(next, diags));
                 std::mem::swap(cur, next);
             }
             let at = self.first + i + 1;

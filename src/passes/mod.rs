@@ -92,6 +92,15 @@ pub trait Pass: Send {
         self.observe(std::slice::from_ref(&block), out.diags);
         out.push(block);
     }
+    /// Consumes a batch of blocks, in order, as [`Pass::run`] on each (which it calls).
+    /// The pipeline calls this one: being generic over the pass, the loop calls `run`
+    /// directly, so a block can go from the batch to where the pass keeps it in one copy
+    /// instead of first being copied into the argument of a call through the vtable.
+    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.run(block, out);
+        }
+    }
     /// A pass that only reads blocks (a check) looks at a whole batch where it lies and
     /// returns `true`: the blocks then go on as they are, without being moved through
     /// [`Pass::run`] (whose default then serves a block at a time). The default returns

@@ -235,9 +235,10 @@ enum Kind {
     Marker(u64),
 }
 
+/// What the window knows of a held block (the block itself is in
+/// `ValveLookahead::blocks`, at the same index).
 #[derive(Debug, Clone)]
 struct Item {
-    block: Block,
     kind: Kind,
     extruding: bool,
     /// Identity of the item's start (kept by the first part when it is split).
@@ -286,7 +287,7 @@ struct Event {
     /// The previous correction and the error it gave.
     last: Option<(f64, f64)>,
     /// The item this event split, and the ids of the two parts' inner ends.
-    original: Option<(Item, u64, u64)>,
+    original: Option<(Item, Block, u64, u64)>,
     /// Placed at the earliest allowed point, short of its delay.
     clamped: bool,
     span: Span,
@@ -332,7 +333,11 @@ pub struct ValveLookahead {
     p_cache: Option<(Joints, Joints)>,
     /// Retracted E not yet pushed back.
     pending: f64,
+    /// The window: what is known of each held block, and the blocks, index by index.
+    /// Kept apart so that a block is copied once into the window and once out of it:
+    /// they are the larger part, and the window's work only needs them to split a move.
     items: VecDeque<Item>,
+    blocks: VecDeque<Block>,
     events: HashMap<u64, Event>,
     next_id: u64,
     /// Time and planner state at the window's start.
@@ -423,6 +428,7 @@ impl ValveLookahead {
             p_cache: None,
             pending: 0.0,
             items: VecDeque::new(),
+            blocks: VecDeque::new(),
             events: HashMap::new(),
             next_id: 1,
             base_time: 0.0,
@@ -533,10 +539,9 @@ impl ValveLookahead {
         }
     }
 
-    fn item(&mut self, block: Block, kind: Kind, extruding: bool) -> Item {
+    fn item(&mut self, kind: Kind, extruding: bool) -> Item {
         let id = self.fresh();
         Item {
-            block,
             kind,
             extruding,
             start_id: id,
@@ -793,7 +798,7 @@ impl ValveLookahead {
                 if !(f > 1e-9 && f < 1.0 - 1e-9) {
                     return None;
                 }
-                let BlockKind::Motion(motion) = &it.block.kind else {
+                let BlockKind::Motion(motion) = &self.blocks[i].kind else {
                     return None;
                 };
                 let mid = match motion.kind {
@@ -826,9 +831,9 @@ impl ValveLookahead {
                 }
                 let seg_a = self.segment(&ma, &m.p_from, &p_mid);
                 let seg_b = self.segment(&mb, &p_mid, &m.p_to);
-                let mut ba = it.block.clone();
+                let mut ba = self.blocks[i].clone();
                 ba.kind = BlockKind::Motion(ma);
-                let mut bb = it.block.clone();
+                let mut bb = self.blocks[i].clone();
                 bb.kind = BlockKind::Motion(mb);
                 bb.comments.clear();
                 let da = MoveData {
@@ -857,9 +862,9 @@ impl ValveLookahead {
                 if a <= 0.0 || b <= 0.0 {
                     return None;
                 }
-                let mut ba = it.block.clone();
+                let mut ba = self.blocks[i].clone();
                 ba.kind = BlockKind::Dwell { seconds: a };
-                let mut bb = it.block.clone();
+                let mut bb = self.blocks[i].clone();
                 bb.kind = BlockKind::Dwell { seconds: b };
                 bb.comments.clear();
                 (
@@ -872,7 +877,6 @@ impl ValveLookahead {
         let (start_id, end_id, extruding) = (it.start_id, it.end_id, it.extruding);
         let (mid_end, mid_start) = (self.fresh(), self.fresh());
         let a = Item {
-            block: first.0,
             kind: first.1,
             extruding,
             start_id,
@@ -882,7 +886,6 @@ impl ValveLookahead {
             speeds: (0.0, 0.0),
         };
         let b = Item {
-            block: second.0,
             kind: second.1,
             extruding,
             start_id: mid_start,
@@ -892,13 +895,14 @@ impl ValveLookahead {
             speeds: (0.0, 0.0),
         };
         self.items[i] = a;
-        self.items.insert(i + 1, b);
+        self.blocks[i] = first.0;
+        self.insert_item(i + 1, b, second.0);
         self.dirty = true;
         Some((mid_end, mid_start))
     }
 
-    /// The command item of event `id`.
-    fn marker(&mut self, ev: &Event, id: u64) -> Item {
+    /// The command item of event `id`, and its block.
+    fn marker(&mut self, ev: &Event, id: u64) -> (Item, Block) {
         let text = if ev.open {
             self.open_command.clone()
         } else {
@@ -912,7 +916,19 @@ impl ValveLookahead {
                 clobbers: AxisSet::EMPTY,
             }),
         );
-        self.item(block, Kind::Marker(id), false)
+        (self.item(Kind::Marker(id), false), block)
+    }
+
+    /// Inserts `item` and its `block` at `i` in the window.
+    fn insert_item(&mut self, i: usize, item: Item, block: Block) {
+        self.items.insert(i, item);
+        self.blocks.insert(i, block);
+    }
+
+    /// Takes item `i` and its block out of the window.
+    fn remove_item(&mut self, i: usize) {
+        self.items.remove(i);
+        self.blocks.remove(i);
     }
 
     /// Places event `id`'s command (and an open's dwell) by the current timing.
@@ -923,8 +939,9 @@ impl ValveLookahead {
         };
         let Some((b, t_target)) = self.target_of(&ev) else {
             // The target left the window (forced release): the command goes at its start.
-            let marker = self.marker(&ev, id);
+            let (marker, block) = self.marker(&ev, id);
             self.items.push_front(marker);
+            self.blocks.push_front(block);
             self.dirty = true;
             if let Some(e) = self.events.get_mut(&id) {
                 e.clamped = true;
@@ -955,10 +972,10 @@ impl ValveLookahead {
             } else if desired - it.start <= SPLIT_EPS {
                 pos = i;
             } else {
-                let saved = it.clone();
+                let saved = (it.clone(), self.blocks[i].clone());
                 match self.split(i, desired - it.start) {
                     Some((ea, sb)) => {
-                        original = Some((saved, ea, sb));
+                        original = Some((saved.0, saved.1, ea, sb));
                         pos = i + 1;
                     }
                     None => {
@@ -982,8 +999,8 @@ impl ValveLookahead {
                 pos += 1;
             }
         }
-        let marker = self.marker(&ev, id);
-        self.items.insert(pos, marker);
+        let (marker, block) = self.marker(&ev, id);
+        self.insert_item(pos, marker, block);
         self.dirty = true;
         if let Some(e) = self.events.get_mut(&id) {
             e.original = original;
@@ -1018,14 +1035,13 @@ impl ValveLookahead {
                 style: CommentStyle::Semicolon,
             });
             let item = self.item(
-                dwell,
                 Kind::Dwell {
                     seconds,
                     owner: Some(id),
                 },
                 false,
             );
-            self.items.insert(ti, item);
+            self.insert_item(ti, item, dwell);
             self.dirty = true;
             let span = ev.span;
             if self.replacing {
@@ -1083,31 +1099,37 @@ impl ValveLookahead {
                 seconds,
                 owner: Some(id),
             };
-            self.items[d].block.kind = BlockKind::Dwell { seconds };
+            self.blocks[d].kind = BlockKind::Dwell { seconds };
         } else {
-            self.items.remove(d);
+            self.remove_item(d);
         }
         self.dirty = true;
     }
 
     /// Takes event `id`'s command and dwell out again and merges its split.
     fn undo(&mut self, id: u64) {
-        self.items
-            .retain(|it| !matches!(it.kind, Kind::Dwell { owner: Some(o), .. } if o == id));
+        while let Some(d) = self
+            .items
+            .iter()
+            .rposition(|it| matches!(it.kind, Kind::Dwell { owner: Some(o), .. } if o == id))
+        {
+            self.remove_item(d);
+        }
         self.undo_marker(id);
     }
 
     /// Takes event `id`'s command out again and merges its split.
     fn undo_marker(&mut self, id: u64) {
         if let Some(m) = self.find_marker(id) {
-            self.items.remove(m);
+            self.remove_item(m);
         }
-        if let Some((orig, ea, sb)) = self.events.get_mut(&id).and_then(|e| e.original.take())
+        if let Some((orig, orig_block, ea, sb)) =
+            self.events.get_mut(&id).and_then(|e| e.original.take())
             && let Some(a) = self.find_end(ea)
             && a + 1 < self.items.len()
             && self.items[a + 1].start_id == sb
         {
-            let mut orig = orig;
+            let (mut orig, mut orig_block) = (orig, orig_block);
             // A dwell may have been lengthened or shortened since: merge what is there.
             if let (
                 Kind::Dwell { seconds: sa, .. },
@@ -1120,10 +1142,11 @@ impl ValveLookahead {
                     seconds,
                     owner: *owner,
                 };
-                orig.block.kind = BlockKind::Dwell { seconds };
+                orig_block.kind = BlockKind::Dwell { seconds };
             }
             self.items[a] = orig;
-            self.items.remove(a + 1);
+            self.blocks[a] = orig_block;
+            self.remove_item(a + 1);
         }
         self.dirty = true;
     }
@@ -1252,9 +1275,9 @@ impl ValveLookahead {
         self.in_run = false;
     }
 
-    /// Adds an input block of `kind` to the window (the item is built where it is kept:
-    /// the block is moved once) and starts or ends runs and their events. Inlined into
-    /// its one caller, so the block does not stop in this call's arguments either.
+    /// Adds an input block of `kind` to the window and starts or ends runs and their
+    /// events. Inlined into its one caller, so the block does not stop in this call's
+    /// arguments.
     #[inline(always)]
     fn push(&mut self, block: Block, kind: Kind, extruding: bool, out: &mut Output<'_>) {
         let cv = match &kind {
@@ -1276,8 +1299,8 @@ impl ValveLookahead {
             self.dirty = true;
             (0.0, 0.0)
         };
+        self.blocks.push_back(block);
         self.items.push_back(Item {
-            block,
             kind,
             extruding,
             start_id,
@@ -1388,7 +1411,7 @@ impl ValveLookahead {
             count
         };
         if forced > count {
-            let span = self.items[0].block.span;
+            let span = self.blocks[0].span;
             let max = self.max_lookahead;
             self.windowed.hit(out, || {
                 Diagnostic::warning(
@@ -1418,11 +1441,11 @@ impl ValveLookahead {
                 _ => None,
             };
         }
+        out.blocks.extend(self.blocks.drain(..forced));
         for it in self.items.drain(..forced) {
             if let Kind::Marker(id) = it.kind {
                 self.events.remove(&id);
             }
-            out.push(it.block);
             if let Kind::Move(b) = it.kind
                 && self.spare.len() < SPARE_BOXES
             {
