@@ -93,9 +93,9 @@ pub trait Pass: Send {
         out.push(block);
     }
     /// Consumes a batch of blocks, in order, as [`Pass::run`] on each (which it calls).
-    /// The pipeline calls this one: being generic over the pass, the loop calls `run`
-    /// directly, so a block can go from the batch to where the pass keeps it in one copy
-    /// instead of first being copied into the argument of a call through the vtable.
+    /// The pipeline calls this one: one call through the vtable per batch, and the loop,
+    /// made for each pass, calls `run` directly (each block is still copied into `run`'s
+    /// argument).
     fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
         for block in blocks.drain(..) {
             self.run(block, out);

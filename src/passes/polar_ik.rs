@@ -651,7 +651,7 @@ impl PolarIk {
         Joints { values, known }
     }
 
-    /// [`Self::emitted`] in place.
+    /// Puts r and θ (degrees) in place of X and Y, in place.
     fn to_polar(&self, j: &mut Joints, p: &PolarPoint) {
         j.forget(AxisSet::from_iter([Axis::X, Axis::Y]));
         j.set(self.polar.r_axis, p.r);

@@ -239,10 +239,7 @@ impl Stats {
                 if let Some(seg) = self.planner.model().motion(&self.last, m) {
                     self.planner.push_move(seg, ());
                 }
-                let mut next = self.last;
-                for a in end.known.iter() {
-                    next.set(a, end.values[a.index()]);
-                }
+                let mut next = self.last.updated_by(end);
                 if m.machine_frame {
                     next.forget(m.written);
                 }

@@ -333,9 +333,11 @@ pub struct ValveLookahead {
     p_cache: Option<(Joints, Joints)>,
     /// Retracted E not yet pushed back.
     pending: f64,
-    /// The window: what is known of each held block, and the blocks, index by index.
-    /// Kept apart so that a block is copied once into the window and once out of it:
-    /// they are the larger part, and the window's work only needs them to split a move.
+    /// The window: what is known of each held block, and the blocks, index by index
+    /// (always the same length: change them through `insert_item` and `remove_item`).
+    /// Kept apart so that taking a block in and passing it on copies the block alone,
+    /// not the block inside its item; the window's work only needs the blocks to split
+    /// a move.
     items: VecDeque<Item>,
     blocks: VecDeque<Block>,
     events: HashMap<u64, Event>,
@@ -940,8 +942,7 @@ impl ValveLookahead {
         let Some((b, t_target)) = self.target_of(&ev) else {
             // The target left the window (forced release): the command goes at its start.
             let (marker, block) = self.marker(&ev, id);
-            self.items.push_front(marker);
-            self.blocks.push_front(block);
+            self.insert_item(0, marker, block);
             self.dirty = true;
             if let Some(e) = self.events.get_mut(&id) {
                 e.clamped = true;
@@ -972,10 +973,10 @@ impl ValveLookahead {
             } else if desired - it.start <= SPLIT_EPS {
                 pos = i;
             } else {
-                let saved = (it.clone(), self.blocks[i].clone());
+                let (saved, saved_block) = (it.clone(), self.blocks[i].clone());
                 match self.split(i, desired - it.start) {
                     Some((ea, sb)) => {
-                        original = Some((saved.0, saved.1, ea, sb));
+                        original = Some((saved, saved_block, ea, sb));
                         pos = i + 1;
                     }
                     None => {
@@ -1123,13 +1124,12 @@ impl ValveLookahead {
         if let Some(m) = self.find_marker(id) {
             self.remove_item(m);
         }
-        if let Some((orig, orig_block, ea, sb)) =
+        if let Some((mut orig, mut orig_block, ea, sb)) =
             self.events.get_mut(&id).and_then(|e| e.original.take())
             && let Some(a) = self.find_end(ea)
             && a + 1 < self.items.len()
             && self.items[a + 1].start_id == sb
         {
-            let (mut orig, mut orig_block) = (orig, orig_block);
             // A dwell may have been lengthened or shortened since: merge what is there.
             if let (
                 Kind::Dwell { seconds: sa, .. },
@@ -1441,6 +1441,7 @@ impl ValveLookahead {
                 _ => None,
             };
         }
+        debug_assert_eq!(self.items.len(), self.blocks.len());
         out.blocks.extend(self.blocks.drain(..forced));
         for it in self.items.drain(..forced) {
             if let Kind::Marker(id) = it.kind {
