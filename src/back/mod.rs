@@ -20,7 +20,7 @@ use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Comment, CommentStyle, FeedMode, Joints, Motion,
     MotionKind, OffsetChange, Plane, Target,
 };
-use number::{to_units, write_units};
+use number::{Digits, to_units};
 
 /// A sink for IR blocks.
 pub trait Backend {
@@ -174,12 +174,47 @@ struct Modes {
     e_relative: Option<bool>,
 }
 
+/// The line being printed: bytes that are always ASCII or whole UTF-8 characters (only
+/// `char`s, `str`s and [`Digits`] go in), kept as bytes so that a number is appended
+/// with one fixed-size copy.
+#[derive(Default)]
+struct Line(Vec<u8>);
+
+impl Line {
+    fn push(&mut self, c: char) {
+        if c.is_ascii() {
+            self.0.push(c as u8);
+        } else {
+            self.push_str(c.encode_utf8(&mut [0; 4]));
+        }
+    }
+    fn push_str(&mut self, s: &str) {
+        self.0.extend_from_slice(s.as_bytes());
+    }
+    fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+    fn clear(&mut self) {
+        self.0.clear();
+    }
+    fn insert_str(&mut self, at: usize, s: &str) {
+        self.0.splice(at..at, s.bytes());
+    }
+    fn as_bytes(&self) -> &[u8] {
+        &self.0
+    }
+    /// The line as text (for messages).
+    fn text(&self) -> std::borrow::Cow<'_, str> {
+        String::from_utf8_lossy(&self.0)
+    }
+}
+
 /// The shared G-code emitter.
 pub(crate) struct Emitter<W: Write> {
     out: W,
     flavor: Flavor,
     fmt: Format,
-    line: String,
+    line: Line,
     number: u64,
     modes: Modes,
     /// Last printed program-frame value per axis, in print units.
@@ -202,7 +237,7 @@ impl<W: Write> Emitter<W> {
             out,
             flavor,
             fmt,
-            line: String::with_capacity(128),
+            line: Line(Vec::with_capacity(128)),
             number: 0,
             modes: Modes::default(),
             printed: [None; AXIS_COUNT],
@@ -232,9 +267,17 @@ impl<W: Write> Emitter<W> {
     }
 
     fn word_units(&mut self, letter: char, units: i64, decimals: u8) {
-        self.space();
-        self.line.push(letter);
-        write_units(&mut self.line, units, decimals, self.fmt.trim_zeros);
+        let mut digits = Digits::new(units, decimals, self.fmt.trim_zeros);
+        if letter.is_ascii() {
+            digits.prefix(letter as u8);
+            if !self.line.is_empty() {
+                digits.prefix(b' ');
+            }
+        } else {
+            self.space();
+            self.line.push(letter);
+        }
+        digits.append_to(&mut self.line.0);
     }
 
     fn space(&mut self) {
@@ -263,7 +306,7 @@ impl<W: Write> Emitter<W> {
                 self.line.insert_str(0, &prefix);
             }
             if numbered && self.fmt.checksums {
-                let cs = self.line.bytes().fold(0u8, |a, b| a ^ b);
+                let cs = self.line.as_bytes().iter().fold(0u8, |a, b| a ^ b);
                 self.line.push('*');
                 self.line.push_str(itoa::Buffer::new().format(cs));
             }
@@ -296,9 +339,10 @@ impl<W: Write> Emitter<W> {
         }
         if !self.line.is_empty() {
             if let Flavor::Grbl(_) = self.flavor {
-                let n = grbl::counted_length(&self.line);
+                let n = grbl::counted_length(&self.line.text());
                 if n > grbl::LINE_LIMIT {
-                    let text = std::mem::take(&mut self.line);
+                    let text = self.line.text().into_owned();
+                    self.line.clear();
                     return Err(Diagnostic::error(
                         "grbl::line-length",
                         format!(

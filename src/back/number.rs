@@ -44,6 +44,125 @@ pub fn printed(value: f64, decimals: u8) -> Option<f64> {
 /// `10^d` for the decimals a number is printed with (at most 9), exact.
 const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 
+/// Where [`Digits`] ends the number in its buffer.
+const DIGITS_END: usize = 24;
+
+/// `00`, `01`, ..., `99`: two digits per division by 100, as itoa does.
+const PAIRS: &[u8; 200] = b"0001020304050607080910111213141516171819\
+2021222324252627282930313233343536373839\
+4041424344454647484950515253545556575859\
+6061626364656667686970717273747576777879\
+8081828384858687888990919293949596979899";
+
+/// A printed fixed-point number in a buffer with room on both sides, so that a caller can
+/// put a letter and a space before it and copy it out in one fixed-size move (no
+/// `memcpy` call of a variable length for every word of every line).
+pub(crate) struct Digits {
+    buf: [u8; 2 * DIGITS_END],
+    /// The number is `buf[start..end]`, with `end <= DIGITS_END`.
+    start: usize,
+    end: usize,
+}
+
+/// Writes the two digits of `pair` (below 100) at `buf[i..i + 2]`.
+#[inline(always)]
+fn put_pair(buf: &mut [u8; 2 * DIGITS_END], i: usize, pair: u32) {
+    let p = 2 * pair as usize;
+    buf[i..i + 2].copy_from_slice(&PAIRS[p..p + 2]);
+}
+
+impl Digits {
+    /// `units * 10^-decimals` (decimals at most 9), trailing zeros trimmed when `trim` is
+    /// set. The number is at most 22 bytes long (a sign, 20 digits and the point), which
+    /// leaves room for two prefixes.
+    #[inline]
+    pub(crate) fn new(units: i64, decimals: u8, trim: bool) -> Digits {
+        let u = units.unsigned_abs();
+        let frac = usize::from(decimals.min(9));
+        // Whole and fractional part by constant divisors (a multiplication each), not
+        // by a variable power of ten (a 64-bit `div`).
+        let (mut whole, fraction) = match frac {
+            0 => (u, 0),
+            1 => (u / 10, u % 10),
+            2 => (u / 100, u % 100),
+            3 => (u / 1_000, u % 1_000),
+            4 => (u / 10_000, u % 10_000),
+            5 => (u / 100_000, u % 100_000),
+            6 => (u / 1_000_000, u % 1_000_000),
+            7 => (u / 10_000_000, u % 10_000_000),
+            8 => (u / 100_000_000, u % 100_000_000),
+            _ => (u / 1_000_000_000, u % 1_000_000_000),
+        };
+        let mut buf = [b'0'; 2 * DIGITS_END];
+        let mut i = DIGITS_END;
+        let mut end = DIGITS_END;
+        if frac > 0 {
+            // Below 10^9: 32-bit arithmetic.
+            let mut f = fraction as u32;
+            let mut left = frac;
+            while left >= 2 {
+                i -= 2;
+                put_pair(&mut buf, i, f % 100);
+                f /= 100;
+                left -= 2;
+            }
+            if left == 1 {
+                i -= 1;
+                buf[i] = b'0' + (f % 10) as u8;
+            }
+            i -= 1;
+            buf[i] = b'.';
+            if trim {
+                while buf[end - 1] == b'0' {
+                    end -= 1;
+                }
+                if end == i + 1 {
+                    end = i;
+                }
+            }
+        }
+        // The whole part, at least one digit (the buffer is '0' where nothing is put).
+        while whole >= 100 {
+            i -= 2;
+            put_pair(&mut buf, i, (whole % 100) as u32);
+            whole /= 100;
+        }
+        if whole >= 10 {
+            i -= 2;
+            put_pair(&mut buf, i, whole as u32);
+        } else {
+            i -= 1;
+            buf[i] = b'0' + whole as u8;
+        }
+        if units < 0 {
+            i -= 1;
+            buf[i] = b'-';
+        }
+        Digits { buf, start: i, end }
+    }
+
+    /// Puts `c` (ASCII) just before the number.
+    #[inline]
+    pub(crate) fn prefix(&mut self, c: u8) {
+        self.start -= 1;
+        self.buf[self.start] = c;
+    }
+
+    /// The number (with its prefixes), ASCII.
+    pub(crate) fn as_bytes(&self) -> &[u8] {
+        &self.buf[self.start..self.end]
+    }
+
+    /// Appends the number to `out` with one copy of a fixed size: the whole tail of the
+    /// buffer goes in, then `out` is cut back to the number's end.
+    #[inline]
+    pub(crate) fn append_to(&self, out: &mut Vec<u8>) {
+        let len = out.len();
+        out.extend_from_slice(&self.buf[self.start..self.start + DIGITS_END]);
+        out.truncate(len + self.end - self.start);
+    }
+}
+
 /// Appends `units * 10^-decimals` to `out`, trimming trailing zeros when `trim` is set
 /// (`12.500` → `12.5`, `3.000` → `3`).
 ///
@@ -57,36 +176,12 @@ const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 /// assert_eq!(s, "0.005");
 /// ```
 pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
-    let mut u = units.unsigned_abs();
-    let mut frac = decimals.min(9);
-    if trim {
-        while frac > 0 && u.is_multiple_of(10) {
-            u /= 10;
-            frac -= 1;
-        }
-    }
-    if units < 0 {
-        out.push('-');
-    }
-    // All digits in one integer print, the point put between them: no division by a
-    // variable power of ten (a 64-bit `div` on every word of every line).
-    let mut buffer = itoa::Buffer::new();
-    let digits = buffer.format(u);
-    let frac = usize::from(frac);
-    if digits.len() > frac {
-        let (whole, fraction) = digits.split_at(digits.len() - frac);
-        out.push_str(whole);
-        if frac > 0 {
-            out.push('.');
-            out.push_str(fraction);
-        }
-    } else {
-        out.push_str("0.");
-        for _ in digits.len()..frac {
-            out.push('0');
-        }
-        out.push_str(digits);
-    }
+    out.extend(
+        Digits::new(units, decimals, trim)
+            .as_bytes()
+            .iter()
+            .map(|&b| char::from(b)),
+    );
 }
 
 /// Prints `value` at `decimals` places (see [`write_units`]); `false` if it does not fit.
@@ -120,6 +215,64 @@ mod tests {
         assert_eq!(fmt(123.4567, 3, true), "123.457");
         assert_eq!(fmt(2400.0, 0, true), "2400");
         assert_eq!(fmt(0.00001, 5, true), "0.00001");
+    }
+
+    /// What `write_units` prints, by plain formatting of the whole and fractional parts.
+    fn units_by_format(units: i64, decimals: u8, trim: bool) -> String {
+        let d = u32::from(decimals.min(9));
+        let u = u128::from(units.unsigned_abs());
+        let p = 10u128.pow(d);
+        let sign = if units < 0 { "-" } else { "" };
+        let mut s = format!("{sign}{}", u / p);
+        if d > 0 {
+            let f = format!("{:0width$}", u % p, width = d as usize);
+            let f = if trim { f.trim_end_matches('0') } else { &f };
+            if !f.is_empty() {
+                s.push('.');
+                s.push_str(f);
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn prints_units_at_the_ends_of_the_range() {
+        for units in [i64::MIN, i64::MIN + 1, -1, 0, 1, 10, 100, i64::MAX] {
+            for d in 0..=10 {
+                for trim in [false, true] {
+                    let mut s = String::new();
+                    write_units(&mut s, units, d, trim);
+                    assert_eq!(s, units_by_format(units, d, trim), "{units} {d} {trim}");
+                }
+            }
+        }
+    }
+
+    proptest::proptest! {
+        /// Any units at any precision print as plain formatting does, and with a letter
+        /// and a space put before them and copied out in one go, the same bytes follow
+        /// what is already in the line.
+        #[test]
+        fn units_print_as_plain_formatting_does(
+            units in proptest::num::i64::ANY,
+            small in -10_000_000i64..10_000_000,
+            decimals in 0u8..11,
+            trim: bool,
+            before in "[ -~]{0,40}",
+        ) {
+            for u in [units, small] {
+                let want = units_by_format(u, decimals, trim);
+                let mut s = String::new();
+                write_units(&mut s, u, decimals, trim);
+                proptest::prop_assert_eq!(&s, &want);
+                let mut line = before.clone().into_bytes();
+                let mut digits = Digits::new(u, decimals, trim);
+                digits.prefix(b'X');
+                digits.prefix(b' ');
+                digits.append_to(&mut line);
+                proptest::prop_assert_eq!(line, format!("{before} X{want}").into_bytes());
+            }
+        }
     }
 
     /// The rounding `to_units` stands for.
