@@ -1,6 +1,10 @@
 //! The pipeline: frontend → passes → backend, block by block.
 
+mod relay;
+
 use std::io::{BufRead, Write};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::back::{self, Backend};
 use crate::diag::{Diagnostic, Severity};
@@ -8,6 +12,7 @@ use crate::front::{self, Frontend};
 use crate::ir::{Block, dump};
 use crate::passes::{self, Output, Pass};
 use crate::preset::{Emit, PassSpec, Preset};
+use relay::{Batch, Schedule, Task};
 
 /// An input language.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -222,13 +227,15 @@ impl Pipeline {
     }
 
     /// Reads G-code from `input` and writes the preset's output format to `output`.
-    /// Frontend diagnostics go to `on_diag` as they occur, those of the passes and the
-    /// backend at the end. `Err` only for I/O failures of the writer; input errors are
-    /// counted in the summary.
+    /// Diagnostics go to `on_diag` in input order, a batch of blocks at a time as each
+    /// batch is written (within a batch: the frontend's, then each pass's, then the
+    /// backend's). `Err` only for I/O failures of the writer; input errors are counted in
+    /// the summary.
     ///
-    /// Two threads share the work: this one reads and lowers the input; a second one runs
-    /// the passes and the backend. Batches of blocks go between them through a bounded
-    /// channel, so memory stays bounded.
+    /// Two threads share the work: this one reads the input while few batches are on
+    /// their way; otherwise both run the passes and the backend on whichever batch waits
+    /// at a free stage, each stage taking its batches in input order. At most a few
+    /// batches are on their way at once, so memory stays bounded.
     pub fn run_gcode(
         &mut self,
         input: impl BufRead,
@@ -263,147 +270,144 @@ impl Pipeline {
         }
     }
 
-    /// Runs `front` through the passes and the preset's backend into `output`, with the
-    /// passes and the backend on a second thread.
+    /// Runs `front` through the passes and the preset's backend into `output` on two
+    /// threads that share the passes and the backend as they go (see [`relay`]).
     pub fn run_threaded(
         &mut self,
         front: &mut dyn Frontend,
         output: impl Write + Send,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Result<Summary, Diagnostic> {
-        const BATCH: usize = 1024;
         let mut summary = Summary::default();
         if !self.notes.is_empty() {
             let mut notes = self.notes.clone();
             report(&mut notes, on_diag, &mut summary);
         }
         let preset = &self.preset;
-        let share = self.stages.front_share();
-        let (mut front_part, mut back_part) = self.stages.split(share);
+        let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
+        let backend: Box<dyn Backend + Send + '_> = match preset.emit {
+            Emit::Rrf => Box::new(back::rrf::Writer::new(&mut out, &preset.rrf)),
+            Emit::Gcode => Box::new(back::gcode::Writer::new(&mut out, &preset.gcode)),
+            Emit::Grbl => Box::new(back::grbl::Writer::new(&mut out, &preset.grbl)),
+            Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
+        };
         let progress = &mut self.progress;
-        let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<Block>>(2);
-        // Emptied batches go back to the frontend: a batch's buffer grows to what the
-        // passes make of it once, not on every batch.
-        let (recycle_tx, recycle) = std::sync::mpsc::sync_channel::<Vec<Block>>(4);
-        let (blocks_out, back_diags) = std::thread::scope(|scope| {
-            let worker = scope.spawn(move || {
-                let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
-                let mut diags = Vec::new();
-                let mut written = 0u64;
-                // Set by the first write error (a full disk, a closed pipe): nothing more
-                // is written, and the frontend stops at its next batch.
-                let failed = std::cell::Cell::new(false);
-                {
-                    let mut backend: Box<dyn Backend + '_> = match preset.emit {
-                        Emit::Rrf => Box::new(back::rrf::Writer::new(&mut out, &preset.rrf)),
-                        Emit::Gcode => Box::new(back::gcode::Writer::new(&mut out, &preset.gcode)),
-                        Emit::Grbl => Box::new(back::grbl::Writer::new(&mut out, &preset.grbl)),
-                        Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
-                    };
-                    let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
-                        if !failed.get() {
-                            written += blocks.len() as u64;
-                            let ok = back::write_each(backend.as_mut(), blocks, diags);
-                            failed.set(ok.is_err());
-                        }
-                        blocks.clear();
-                    };
-                    let mut next = Vec::with_capacity(BATCH);
-                    for mut batch in rx.iter() {
-                        back_part.flow(0, &mut batch, &mut next, &mut diags, &mut deliver);
-                        if failed.get() {
-                            break;
-                        }
-                        batch.clear();
-                        // A full or closed channel just drops the buffer.
-                        let _ = recycle_tx.try_send(batch);
-                    }
-                    // A closed channel stops the frontend.
-                    drop(rx);
-                    if !failed.get() {
-                        back_part.finish(&mut diags, &mut deliver);
-                        if let Err(d) = backend.finish() {
-                            diags.push(d);
-                        }
-                    }
-                }
-                if !failed.get()
-                    && let Err(e) = out.flush()
-                {
-                    diags.push(back::io_error(e));
-                }
-                (written, diags)
-            });
-            let mut diags = Vec::new();
-            let mut counter = 0u64;
-            let mut next = Vec::with_capacity(BATCH);
-            // What the frontend's share of the passes produced, ready to send.
-            let mut ready: Vec<Block> = Vec::with_capacity(BATCH);
-            let mut open = true;
-            let mut batch = Vec::with_capacity(BATCH);
-            loop {
-                batch.clear();
-                front.next_batch(&mut batch, BATCH, &mut diags);
-                let end = batch.is_empty();
-                summary.blocks_in += batch.len() as u64;
-                counter += batch.len() as u64;
-                {
-                    // Taking the whole batch when nothing is waiting saves copying it
-                    // (the usual case: the G-code pipeline has no passes on this side).
-                    let mut send = |blocks: &mut Vec<Block>, _: &mut Vec<Diagnostic>| {
-                        if ready.is_empty() {
-                            std::mem::swap(&mut ready, blocks);
-                        } else {
-                            ready.append(blocks);
-                        }
-                    };
-                    if end {
-                        front_part.finish(&mut diags, &mut send);
-                    } else {
-                        front_part.flow(0, &mut batch, &mut next, &mut diags, &mut send);
-                    }
-                }
-                if !diags.is_empty() {
-                    report(&mut diags, on_diag, &mut summary);
-                }
-                if counter >= 1 << 14 {
-                    counter = 0;
-                    if let Some(p) = progress.as_mut() {
-                        p(front.bytes_read());
-                    }
-                }
-                let empty = recycle
-                    .try_recv()
-                    .unwrap_or_else(|_| Vec::with_capacity(BATCH));
-                let out = std::mem::replace(&mut ready, empty);
-                // A closed channel means the worker stopped; its error comes at join.
-                if !out.is_empty() && open && tx.send(out).is_err() {
-                    open = false;
-                }
-                if end || !open {
-                    break;
-                }
-            }
-            drop(tx);
-            worker.join().unwrap_or_else(|_| {
-                (
-                    0,
-                    vec![Diagnostic::error(
-                        "back::panic",
-                        "the backend stopped unexpectedly",
-                    )],
-                )
-            })
-        });
-        summary.blocks_out = blocks_out;
         let mut io_error = None;
-        for d in back_diags {
-            if back::is_io_error(&d) && io_error.is_none() {
-                summary.errors += 1;
-                io_error = Some(d);
-            } else {
-                report(&mut vec![d], on_diag, &mut summary);
+        let mut deliver = |reports: Vec<Vec<Diagnostic>>, summary: &mut Summary| {
+            for d in reports.into_iter().flatten() {
+                if back::is_io_error(&d) && io_error.is_none() {
+                    summary.errors += 1;
+                    io_error = Some(d);
+                } else {
+                    report(&mut vec![d], on_diag, summary);
+                }
             }
+        };
+        let (aborted, written, failed) = {
+            // Each stage gets the dump point at its input.
+            let dump_at = self.stages.dump_at;
+            let mut dump = self.stages.dump.as_mut();
+            let count = self.stages.passes.len();
+            let passes: Vec<Mutex<PassStage<'_>>> = self
+                .stages
+                .passes
+                .iter_mut()
+                .enumerate()
+                .map(|(i, pass)| {
+                    let dump = if dump_at == Some(i) {
+                        dump.take()
+                    } else {
+                        None
+                    };
+                    Mutex::new(PassStage { pass, dump })
+                })
+                .collect();
+            let writer = Mutex::new(WriterStage {
+                backend,
+                dump: if dump_at == Some(count) {
+                    dump.take()
+                } else {
+                    None
+                },
+                written: 0,
+                failed: false,
+            });
+            let relay = Relay {
+                schedule: Schedule::new(count + 1),
+                passes,
+                writer,
+                failed: AtomicBool::new(false),
+                reports: Mutex::new(Vec::new()),
+                spare: Mutex::new(Vec::new()),
+            };
+            std::thread::scope(|scope| {
+                let worker = scope.spawn(|| {
+                    let mut next = Vec::with_capacity(BATCH);
+                    while let Some(task) = relay.schedule.next(false) {
+                        if let Task::Stage(k, batch) = task {
+                            relay.stage_caught(k, batch, &mut next);
+                        }
+                    }
+                });
+                let mut next = Vec::with_capacity(BATCH);
+                let mut seq = 0u64;
+                let mut counter = 0u64;
+                while let Some(task) = relay.schedule.next(true) {
+                    match task {
+                        Task::Read if relay.failed.load(Ordering::Acquire) => {
+                            // Nothing more can be written: stop reading.
+                            relay.schedule.read_done(None);
+                        }
+                        Task::Read => {
+                            let mut blocks = relay.spare_batch();
+                            let mut diags = Vec::new();
+                            front.next_batch(&mut blocks, BATCH, &mut diags);
+                            let end = blocks.is_empty();
+                            summary.blocks_in += blocks.len() as u64;
+                            counter += blocks.len() as u64;
+                            if counter >= 1 << 14 {
+                                counter = 0;
+                                if let Some(p) = progress.as_mut() {
+                                    p(front.bytes_read());
+                                }
+                            }
+                            relay.schedule.read_done(Some(Batch {
+                                seq,
+                                blocks,
+                                diags,
+                                end,
+                            }));
+                            seq += 1;
+                        }
+                        Task::Stage(k, batch) => relay.stage_caught(k, batch, &mut next),
+                    }
+                    deliver(relay.take_reports(), &mut summary);
+                }
+                if worker.join().is_err() {
+                    relay.schedule.abort();
+                }
+            });
+            deliver(relay.take_reports(), &mut summary);
+            let aborted = relay.schedule.aborted();
+            let WriterStage {
+                written, failed, ..
+            } = relay.writer.into_inner().unwrap_or_else(|p| p.into_inner());
+            (aborted, written, failed)
+        };
+        summary.blocks_out = written;
+        if let Some(d) = &mut self.stages.dump {
+            let _ = d.flush();
+        }
+        if aborted {
+            deliver(
+                vec![vec![Diagnostic::error(
+                    "back::panic",
+                    "the backend stopped unexpectedly",
+                )]],
+                &mut summary,
+            );
+        } else if !failed && let Err(e) = out.flush() {
+            deliver(vec![vec![back::io_error(e)]], &mut summary);
         }
         match io_error {
             Some(d) => Err(d),
@@ -486,68 +490,164 @@ impl Stages {
     fn whole(&mut self) -> Part<'_> {
         Part {
             passes: &mut self.passes,
-            first: 0,
             dump_at: self.dump_at,
             dump: self.dump.as_mut(),
-            last: true,
         }
-    }
-
-    /// Passes `..k` and `k..` as two parts, for two threads. The dump point goes to the
-    /// part it falls in (a dump between the parts is written by the second).
-    fn split(&mut self, k: usize) -> (Part<'_>, Part<'_>) {
-        let (a, b) = self.passes.split_at_mut(k);
-        let (dump_a, dump_b) = match self.dump_at {
-            Some(p) if p < k => (self.dump.as_mut(), None),
-            _ => (None, self.dump.as_mut()),
-        };
-        (
-            Part {
-                passes: a,
-                first: 0,
-                dump_at: self.dump_at.filter(|p| *p < k),
-                dump: dump_a,
-                last: false,
-            },
-            Part {
-                passes: b,
-                first: k,
-                dump_at: self.dump_at.filter(|p| *p >= k),
-                dump: dump_b,
-                last: true,
-            },
-        )
-    }
-
-    /// How many leading passes run beside the frontend in [`Pipeline::run_threaded`]:
-    /// those up to and including the last of [`FRONT_THREAD_PASSES`], so the frontend
-    /// thread (reading, lowering, kinematics) and the writer thread (densify, feed,
-    /// extrusion rate, checks, printing) carry similar loads; none without them, where
-    /// reading is the heavy part.
-    fn front_share(&self) -> usize {
-        self.passes
-            .iter()
-            .rposition(|p| FRONT_THREAD_PASSES.contains(&p.name()))
-            .map_or(0, |i| i + 1)
     }
 }
 
-/// Passes whose work balances the frontend's: the two threads of a run split after the
-/// last of them. Measured on the E-moc pipeline (`ik`: 1.65 s -> 1.4 s on 1M GOTO
-/// points) and the polar printer (`polar-ik` and `valve-lookahead`: 1.14 s -> 0.65 s on
-/// 10 MB of print G-code, where everything had run on the writer thread).
-const FRONT_THREAD_PASSES: &[&str] = &["ik", "polar-ik", "valve-lookahead"];
+/// Blocks the frontend reads per batch.
+const BATCH: usize = 1024;
 
-/// A run of consecutive passes with the dump point that falls among them.
+/// Emptied batch buffers kept for reuse (a buffer grows to what the passes make of a
+/// batch once, not on every batch).
+const SPARE_BATCHES: usize = 4;
+
+/// A pass as a stage of a [`Relay`], with the IR dump of its input when the dump point
+/// is there.
+struct PassStage<'a> {
+    pass: &'a mut Box<dyn Pass>,
+    dump: Option<&'a mut Box<dyn Write + Send>>,
+}
+
+/// The backend as the last stage of a [`Relay`].
+struct WriterStage<'a> {
+    backend: Box<dyn Backend + Send + 'a>,
+    dump: Option<&'a mut Box<dyn Write + Send>>,
+    /// Blocks handed to the backend.
+    written: u64,
+    /// Set by the first write error (a full disk, a closed pipe): nothing more is written.
+    failed: bool,
+}
+
+/// What the two threads of [`Pipeline::run_threaded`] share. The schedule gives a stage
+/// to one thread at a time, so its lock is never waited for.
+struct Relay<'a> {
+    schedule: Schedule,
+    passes: Vec<Mutex<PassStage<'a>>>,
+    writer: Mutex<WriterStage<'a>>,
+    /// The output cannot be written: reading stops, passes skip their work.
+    failed: AtomicBool,
+    /// Each written batch's diagnostics, in input order, for the reading thread.
+    reports: Mutex<Vec<Vec<Diagnostic>>>,
+    spare: Mutex<Vec<Vec<Block>>>,
+}
+
+impl Relay<'_> {
+    /// Runs stage `k` (a pass, or after the last pass the backend) on `batch` and hands
+    /// the batch on.
+    fn stage(&self, k: usize, mut batch: Batch, next: &mut Vec<Block>) {
+        match self.passes.get(k) {
+            Some(stage) => {
+                let mut stage = stage.lock().unwrap_or_else(|p| p.into_inner());
+                self.run_pass(&mut stage, &mut batch, next);
+            }
+            None => {
+                let mut w = self.writer.lock().unwrap_or_else(|p| p.into_inner());
+                self.write(&mut w, &mut batch);
+            }
+        }
+        if let Some(mut done) = self.schedule.stage_done(k, batch) {
+            done.blocks.clear();
+            if let Ok(mut spare) = self.spare.lock()
+                && spare.len() < SPARE_BATCHES
+            {
+                spare.push(done.blocks);
+            }
+        }
+    }
+
+    fn run_pass(&self, stage: &mut PassStage<'_>, batch: &mut Batch, next: &mut Vec<Block>) {
+        if let Some(d) = stage.dump.as_mut() {
+            dump_blocks(d, &batch.blocks);
+        }
+        if self.failed.load(Ordering::Acquire) {
+            batch.blocks.clear();
+            return;
+        }
+        // A pass that only reads the blocks looks at them where they lie.
+        if !stage.pass.observe(&batch.blocks, &mut batch.diags) {
+            next.clear();
+            stage
+                .pass
+                .run_batch(&mut batch.blocks, &mut Output::new(next, &mut batch.diags));
+            std::mem::swap(&mut batch.blocks, next);
+        }
+        if batch.end {
+            // What the pass still holds goes on after this batch's blocks.
+            stage
+                .pass
+                .finish(&mut Output::new(&mut batch.blocks, &mut batch.diags));
+        }
+    }
+
+    fn write(&self, w: &mut WriterStage<'_>, batch: &mut Batch) {
+        if let Some(d) = w.dump.as_mut() {
+            dump_blocks(d, &batch.blocks);
+        }
+        if !w.failed {
+            w.written += batch.blocks.len() as u64;
+            if back::write_each(w.backend.as_mut(), &batch.blocks, &mut batch.diags).is_err() {
+                w.failed = true;
+                self.failed.store(true, Ordering::Release);
+                self.schedule.stop_reading();
+            } else if batch.end
+                && let Err(d) = w.backend.finish()
+            {
+                batch.diags.push(d);
+            }
+        }
+        // Still the backend's turn: the reports stay in input order.
+        if !batch.diags.is_empty()
+            && let Ok(mut r) = self.reports.lock()
+        {
+            r.push(std::mem::take(&mut batch.diags));
+        }
+    }
+
+    /// [`Relay::stage`], stopping the whole run if a pass or the backend panics (the
+    /// other thread would otherwise wait for this batch forever).
+    fn stage_caught(&self, k: usize, batch: Batch, next: &mut Vec<Block>) {
+        let ran =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.stage(k, batch, next)));
+        if ran.is_err() {
+            self.schedule.abort();
+        }
+    }
+
+    fn take_reports(&self) -> Vec<Vec<Diagnostic>> {
+        self.reports
+            .lock()
+            .map(|mut r| std::mem::take(&mut *r))
+            .unwrap_or_default()
+    }
+
+    /// An empty buffer for the next batch.
+    fn spare_batch(&self) -> Vec<Block> {
+        self.spare
+            .lock()
+            .ok()
+            .and_then(|mut s| s.pop())
+            .unwrap_or_else(|| Vec::with_capacity(BATCH))
+    }
+}
+
+/// Writes `blocks` as IR text to the dump.
+fn dump_blocks(out: &mut Box<dyn Write + Send>, blocks: &[Block]) {
+    let mut s = String::new();
+    for b in blocks {
+        dump::write_block(&mut s, b);
+        s.push('\n');
+    }
+    let _ = out.write_all(s.as_bytes());
+}
+
+/// The passes with the dump point, for the single-threaded [`Pipeline::run`].
 struct Part<'a> {
     passes: &'a mut [Box<dyn Pass>],
-    /// Index of `passes[0]` in the whole pipeline.
-    first: usize,
-    /// Dump point (0 after the frontend, i + 1 after pass i), if it is in this part.
+    /// Dump point (0 after the frontend, i + 1 after pass i).
     dump_at: Option<usize>,
     dump: Option<&'a mut Box<dyn Write + Send>>,
-    /// The last part also dumps after its last pass.
-    last: bool,
 }
 
 impl Part<'_> {
@@ -561,7 +661,7 @@ impl Part<'_> {
         diags: &mut Vec<Diagnostic>,
         deliver: &mut dyn FnMut(&mut Vec<Block>, &mut Vec<Diagnostic>),
     ) {
-        if self.dump_at == Some(self.first + from) {
+        if self.dump_at == Some(from) {
             self.dump_blocks(cur);
         }
         for i in from..self.passes.len() {
@@ -572,8 +672,7 @@ impl Part<'_> {
                 pass.run_batch(cur, &mut Output::new(next, diags));
                 std::mem::swap(cur, next);
             }
-            let at = self.first + i + 1;
-            if self.dump_at == Some(at) && (self.last || i + 1 < self.passes.len()) {
+            if self.dump_at == Some(i + 1) {
                 self.dump_blocks(cur);
             }
         }
@@ -600,12 +699,7 @@ impl Part<'_> {
 
     fn dump_blocks(&mut self, blocks: &[Block]) {
         if let Some(out) = &mut self.dump {
-            let mut s = String::new();
-            for b in blocks {
-                dump::write_block(&mut s, b);
-                s.push('\n');
-            }
-            let _ = out.write_all(s.as_bytes());
+            dump_blocks(out, blocks);
         }
     }
 }

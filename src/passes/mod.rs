@@ -80,8 +80,8 @@ impl<'a> Output<'a> {
 /// A transformation over the block stream.
 ///
 /// A pass may hold back a bounded number of blocks (look-ahead) and must release them
-/// in [`Pass::finish`]. Passes are `Send`: the pipeline runs them beside the frontend, on
-/// the writer's thread.
+/// in [`Pass::finish`]. Passes are `Send`: the pipeline's two threads take turns running
+/// them, one batch at a time and in input order.
 pub trait Pass: Send {
     /// The kebab-case name, as in [`REGISTRY`].
     fn name(&self) -> &'static str;
