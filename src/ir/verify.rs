@@ -29,7 +29,7 @@ impl Verifier {
         match &block.kind {
             BlockKind::Motion(m) => {
                 let joints = match &m.target {
-                    Target::Joints(j) => *j,
+                    Target::Joints(j) => j,
                     Target::Pose(p) => {
                         if !(p.tip.coords.iter().all(|v| v.is_finite())) {
                             return Err("pose tip is not finite (invariant 6)".into());
@@ -37,10 +37,10 @@ impl Verifier {
                         if (p.axis.norm() - 1.0).abs() > 1e-9 {
                             return Err("pose tool axis is not a unit vector (invariant 4)".into());
                         }
-                        p.extra
+                        &p.extra
                     }
                 };
-                check_joints(&joints)?;
+                check_joints(joints)?;
                 if let Some(r) = m.feed.rate
                     && !(r.is_finite() && r >= 0.0)
                 {
