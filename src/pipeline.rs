@@ -400,10 +400,13 @@ impl Pipeline {
         }
         if aborted {
             deliver(
-                vec![vec![Diagnostic::error(
-                    "back::panic",
-                    "the backend stopped unexpectedly",
-                )]],
+                vec![vec![
+                    Diagnostic::error(
+                        "back::panic",
+                        "a pass or the backend stopped unexpectedly: the output is incomplete",
+                    )
+                    .with_help("this is a bug in ncpost; please report it with the input"),
+                ]],
                 &mut summary,
             );
         } else if !failed && let Err(e) = out.flush() {
