@@ -294,14 +294,16 @@ impl Pipeline {
         let progress = &mut self.progress;
         let mut io_error = None;
         let mut deliver = |reports: Vec<Vec<Diagnostic>>, summary: &mut Summary| {
+            let mut rest = Vec::new();
             for d in reports.into_iter().flatten() {
                 if back::is_io_error(&d) && io_error.is_none() {
                     summary.errors += 1;
                     io_error = Some(d);
                 } else {
-                    report(&mut vec![d], on_diag, summary);
+                    rest.push(d);
                 }
             }
+            report(&mut rest, on_diag, summary);
         };
         let (aborted, written, failed) = {
             // Each stage gets the dump point at its input.
@@ -330,7 +332,6 @@ impl Pipeline {
                     None
                 },
                 written: 0,
-                failed: false,
             });
             let relay = Relay {
                 schedule: Schedule::new(count + 1),
@@ -389,10 +390,12 @@ impl Pipeline {
             });
             deliver(relay.take_reports(), &mut summary);
             let aborted = relay.schedule.aborted();
-            let WriterStage {
-                written, failed, ..
-            } = relay.writer.into_inner().unwrap_or_else(|p| p.into_inner());
-            (aborted, written, failed)
+            let written = relay
+                .writer
+                .into_inner()
+                .unwrap_or_else(|p| p.into_inner())
+                .written;
+            (aborted, written, relay.failed.into_inner())
         };
         summary.blocks_out = written;
         if let Some(d) = &mut self.stages.dump {
@@ -519,8 +522,6 @@ struct WriterStage<'a> {
     dump: Option<&'a mut Box<dyn Write + Send>>,
     /// Blocks handed to the backend.
     written: u64,
-    /// Set by the first write error (a full disk, a closed pipe): nothing more is written.
-    failed: bool,
 }
 
 /// What the two threads of [`Pipeline::run_threaded`] share. The schedule gives a stage
@@ -543,7 +544,7 @@ impl Relay<'_> {
         match self.passes.get(k) {
             Some(stage) => {
                 let mut stage = stage.lock().unwrap_or_else(|p| p.into_inner());
-                self.run_pass(&mut stage, &mut batch, next);
+                self.pass_stage(&mut stage, &mut batch, next);
             }
             None => {
                 let mut w = self.writer.lock().unwrap_or_else(|p| p.into_inner());
@@ -560,7 +561,7 @@ impl Relay<'_> {
         }
     }
 
-    fn run_pass(&self, stage: &mut PassStage<'_>, batch: &mut Batch, next: &mut Vec<Block>) {
+    fn pass_stage(&self, stage: &mut PassStage<'_>, batch: &mut Batch, next: &mut Vec<Block>) {
         if let Some(d) = stage.dump.as_mut() {
             dump_blocks(d, &batch.blocks);
         }
@@ -568,14 +569,7 @@ impl Relay<'_> {
             batch.blocks.clear();
             return;
         }
-        // A pass that only reads the blocks looks at them where they lie.
-        if !stage.pass.observe(&batch.blocks, &mut batch.diags) {
-            next.clear();
-            stage
-                .pass
-                .run_batch(&mut batch.blocks, &mut Output::new(next, &mut batch.diags));
-            std::mem::swap(&mut batch.blocks, next);
-        }
+        run_pass(stage.pass, &mut batch.blocks, next, &mut batch.diags);
         if batch.end {
             // What the pass still holds goes on after this batch's blocks.
             stage
@@ -588,10 +582,10 @@ impl Relay<'_> {
         if let Some(d) = w.dump.as_mut() {
             dump_blocks(d, &batch.blocks);
         }
-        if !w.failed {
+        // Set by the first write error (a full disk, a closed pipe): nothing more is written.
+        if !self.failed.load(Ordering::Acquire) {
             w.written += batch.blocks.len() as u64;
             if back::write_each(w.backend.as_mut(), &batch.blocks, &mut batch.diags).is_err() {
-                w.failed = true;
                 self.failed.store(true, Ordering::Release);
                 self.schedule.stop_reading();
             } else if batch.end
@@ -635,6 +629,21 @@ impl Relay<'_> {
     }
 }
 
+/// Runs `pass` on the blocks in `cur`, leaving what it passes on in `cur` (`next` is
+/// scratch). A pass that only reads the blocks looks at them where they lie.
+fn run_pass(
+    pass: &mut Box<dyn Pass>,
+    cur: &mut Vec<Block>,
+    next: &mut Vec<Block>,
+    diags: &mut Vec<Diagnostic>,
+) {
+    if !pass.observe(cur, diags) {
+        next.clear();
+        pass.run_batch(cur, &mut Output::new(next, diags));
+        std::mem::swap(cur, next);
+    }
+}
+
 /// Writes `blocks` as IR text to the dump.
 fn dump_blocks(out: &mut Box<dyn Write + Send>, blocks: &[Block]) {
     let mut s = String::new();
@@ -668,13 +677,7 @@ impl Part<'_> {
             self.dump_blocks(cur);
         }
         for i in from..self.passes.len() {
-            let pass = &mut self.passes[i];
-            // A pass that only reads the blocks looks at them where they lie.
-            if !pass.observe(cur, diags) {
-                next.clear();
-                pass.run_batch(cur, &mut Output::new(next, diags));
-                std::mem::swap(cur, next);
-            }
+            run_pass(&mut self.passes[i], cur, next, diags);
             if self.dump_at == Some(i + 1) {
                 self.dump_blocks(cur);
             }

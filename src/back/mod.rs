@@ -191,6 +191,9 @@ impl Line {
     fn push_str(&mut self, s: &str) {
         self.0.extend_from_slice(s.as_bytes());
     }
+    fn push_digits(&mut self, digits: &Digits) {
+        digits.append_to(&mut self.0);
+    }
     fn is_empty(&self) -> bool {
         self.0.is_empty()
     }
@@ -266,18 +269,15 @@ impl<W: Write> Emitter<W> {
         Ok(())
     }
 
+    /// `letter` is a word letter (an axis, `F`, `I`/`J`/`K`, `P`): always ASCII.
     fn word_units(&mut self, letter: char, units: i64, decimals: u8) {
+        debug_assert!(letter.is_ascii(), "word letter {letter:?}");
         let mut digits = Digits::new(units, decimals, self.fmt.trim_zeros);
-        if letter.is_ascii() {
-            digits.prefix(letter as u8);
-            if !self.line.is_empty() {
-                digits.prefix(b' ');
-            }
-        } else {
-            self.space();
-            self.line.push(letter);
+        digits.prefix(letter as u8);
+        if !self.line.is_empty() {
+            digits.prefix(b' ');
         }
-        digits.append_to(&mut self.line.0);
+        self.line.push_digits(&digits);
     }
 
     fn space(&mut self) {
