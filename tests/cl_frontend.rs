@@ -1326,3 +1326,51 @@ proptest! {
         run(input.as_bytes()).map_err(|e| TestCaseError::fail(format!("{e}\ninput: {input:?}")))?;
     }
 }
+
+/// A number as CAM systems spell it: sign, digits, point, exponent, or too many digits
+/// for the fast reader.
+fn spelled_number() -> impl Strategy<Value = String> {
+    prop_oneof![
+        (-1000.0f64..1000.0, 0usize..9).prop_map(|(v, d)| format!("{v:.d$}")),
+        (-1.0f64..1.0).prop_map(|v| format!("{v}")),
+        (0u32..1000).prop_map(|v| format!("{v}.")),
+        (0u32..1000).prop_map(|v| format!("+.{v}")),
+        (-9.0f64..9.0).prop_map(|v| format!("{v:.3}E-2")),
+        Just("123456789012345678".to_string()),
+        Just("1.5.2".to_string()),
+        Just("-".to_string()),
+        Just(String::new()),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+    /// `GOTO/` with plain numbers takes the one-pass reader; `GOTO /` takes the grammar.
+    /// Both give the same blocks and the same diagnostics, whatever the spelling.
+    #[test]
+    fn plain_goto_reads_as_the_grammar_does(
+        values in proptest::collection::vec(spelled_number(), 1..8),
+        pad in proptest::collection::vec(prop_oneof![Just(""), Just(" "), Just("\t"), Just("  ")], 16),
+    ) {
+        let mut list = String::new();
+        for (i, v) in values.iter().enumerate() {
+            if i > 0 {
+                list.push(',');
+            }
+            list.push_str(pad[2 * i % 16]);
+            list.push_str(v);
+            list.push_str(pad[(2 * i + 1) % 16]);
+        }
+        let program = |head: &str| {
+            let src = format!("MULTAX/ON\nFEDRAT/100\n{head}{list}\n{head}1,2,3\n");
+            match parse_str(&src, &Options::default()) {
+                Ok(p) => Ok(p.blocks.into_iter().map(|b| b.kind).collect::<Vec<_>>()),
+                Err(d) => Err(d.into_iter().map(|d| (d.code, d.message)).collect::<Vec<_>>()),
+            }
+        };
+        let fast = program("GOTO/");
+        let full = program("GOTO /");
+        prop_assert_eq!(fast, full, "list {:?}", list);
+    }
+}

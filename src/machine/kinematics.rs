@@ -54,16 +54,7 @@ fn unit_of(m: &Machine, i: usize) -> Vector3<f64> {
     }
 }
 
-/// Wraps degrees into (-180, 180].
-pub(crate) fn wrap180(deg: f64) -> f64 {
-    let mut d = deg % 360.0;
-    if d <= -180.0 {
-        d += 360.0;
-    } else if d > 180.0 {
-        d -= 360.0;
-    }
-    d
-}
+pub(crate) use super::angle::wrap180;
 
 /// The angle that turns `from` towards `to` about unit `w` (exact when both make the same
 /// angle with `w`, closest otherwise), radians; `None` when either lies along `w`.

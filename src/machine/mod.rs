@@ -22,6 +22,7 @@
 //! - X, Y, Z are the tool tip's position in the machine frame when the head rotaries are
 //!   at zero (the usual "tool tip" control point with tool length compensation).
 
+pub mod angle;
 mod config_g;
 mod kinematics;
 pub mod polar;

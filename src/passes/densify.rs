@@ -44,6 +44,7 @@ use serde::{Deserialize, Serialize};
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, Motion, MotionKind, Span, Target};
+use crate::machine::angle::near_turn;
 use crate::machine::{Machine, Mount, RotaryLetter, ToolPose};
 
 /// Options of `densify`.
@@ -228,11 +229,6 @@ fn any_perpendicular(v: &Vector3<f64>) -> Vector3<f64> {
         Vector3::y()
     };
     v.cross(&helper).normalize()
-}
-
-/// Shifts `value` by whole turns to the representative nearest `target`.
-fn nearest_turn(value: f64, target: f64) -> f64 {
-    value + 360.0 * ((target - value) / 360.0).round()
 }
 
 /// Bounds of a point moving along the joint-linear path through one kinematic stage.
@@ -439,15 +435,15 @@ impl Densify {
             let k = m.singular_rotary(axis);
             let o = m.hold(axis, k, target[k]);
             return [
-                nearest_turn(o.angles[0], target[0]),
-                nearest_turn(o.angles[1], target[1]),
+                near_turn(o.angles[0], target[0]),
+                near_turn(o.angles[1], target[1]),
             ];
         }
         let mut best: Option<([f64; 2], f64)> = None;
         for o in &sols {
             let a = [
-                nearest_turn(o.angles[0], target[0]),
-                nearest_turn(o.angles[1], target[1]),
+                near_turn(o.angles[0], target[0]),
+                near_turn(o.angles[1], target[1]),
             ];
             let cost = (a[0] - target[0]).powi(2) + (a[1] - target[1]).powi(2);
             if best.is_none_or(|(_, c)| cost < c) {
@@ -546,7 +542,7 @@ impl Densify {
             let held = self.machine.hold(axis, k, want).angles;
             let mut angles = end.angles;
             angles[k] = want;
-            angles[1 - k] = nearest_turn(held[1 - k], end.angles[1 - k]);
+            angles[1 - k] = near_turn(held[1 - k], end.angles[1 - k]);
             let xyz = self.machine.linear(&end.pose.tip, angles);
             let mut joints = end.joints;
             joints.set(Axis::X, xyz[0]);

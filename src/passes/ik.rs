@@ -41,6 +41,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Pose, Target,
 };
+use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within};
 use crate::machine::{Machine, Prefer};
 
 /// What `ik` does where the path must flip to the other solution in a cutting move.
@@ -116,20 +117,12 @@ pub const INFO: PassInfo = PassInfo {
     defaults: || super::to_toml(&Options::default()),
 };
 
-/// Slack on rotary limits, degrees: an angle this close to a limit counts as inside.
-const LIMIT_SLACK: f64 = 1e-9;
-
 /// Largest tool-axis turn (degrees) compared by end points alone; longer cutting moves are
 /// followed along their path (see `Ik::walked`).
 const WALK_STEP: f64 = 2.0;
 
 /// Costs closer than this (degrees) are a tie, decided by the preferred sign.
 const TIE: f64 = 1e-9;
-
-/// The angle `v + 360 k` nearest `target`.
-fn near_turn(v: f64, target: f64) -> f64 {
-    v + 360.0 * ((target - v) / 360.0).round()
-}
 
 /// The rotary values chosen for a pose.
 #[derive(Debug, Clone, Copy)]
@@ -185,15 +178,7 @@ impl Ik {
     fn in_limits(&self, i: usize, v: f64, prev: Option<f64>) -> Option<f64> {
         match self.machine.limits(self.axes[i]) {
             None => Some(prev.map_or(v, |p| near_turn(v, p))),
-            Some((lo, hi)) => {
-                let kmin = ((lo - LIMIT_SLACK - v) / 360.0).ceil();
-                let kmax = ((hi + LIMIT_SLACK - v) / 360.0).floor();
-                if kmin > kmax {
-                    return None;
-                }
-                let want = prev.map_or(0.0, |p| ((p - v) / 360.0).round());
-                Some(v + 360.0 * want.clamp(kmin, kmax))
-            }
+            Some((lo, hi)) => turn_within(v, lo, hi, prev),
         }
     }
 

@@ -231,7 +231,7 @@ fn angle_between(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
 /// The whole turn of `angle` nearest to `reference` (radians).
 fn nearest_turn(angle: f64, reference: f64) -> f64 {
     let tau = std::f64::consts::TAU;
-    angle + tau * ((reference - angle) / tau).round()
+    angle + tau * crate::machine::angle::round((reference - angle) / tau)
 }
 
 /// Plans one straight XY move from `p0` (where the machine is at `start`) to `p1`: the

@@ -23,6 +23,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, Block, BlockKind, Joints, MotionKind, OffsetChange, OffsetCode, Target,
 };
+use crate::machine::angle::{LIMIT_SLACK, near_turn, round, turn_within, wrap180};
 
 /// Options of `unwrap-rotary`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -90,9 +91,6 @@ pub const INFO: PassInfo = PassInfo {
 /// than the 4 decimals the machine presets print.
 const FLOAT32_LIMIT: f64 = 8192.0;
 
-/// Slack on rotary limits, degrees.
-const LIMIT_SLACK: f64 = 1e-9;
-
 /// How an axis is treated.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Rule {
@@ -113,22 +111,6 @@ pub struct UnwrapRotary {
     /// Offsets saved by G92.2.
     suspended: Option<[f64; AXIS_COUNT]>,
     warned_float32: bool,
-}
-
-/// The angle `v + 360 k` nearest `target`.
-fn near_turn(v: f64, target: f64) -> f64 {
-    v + 360.0 * ((target - v) / 360.0).round()
-}
-
-/// Wraps degrees into (-180, 180].
-fn wrap180(deg: f64) -> f64 {
-    let mut d = deg % 360.0;
-    if d <= -180.0 {
-        d += 360.0;
-    } else if d > 180.0 {
-        d -= 360.0;
-    }
-    d
 }
 
 impl UnwrapRotary {
@@ -156,14 +138,8 @@ impl UnwrapRotary {
                 if (lo - LIMIT_SLACK..=hi + LIMIT_SLACK).contains(&v) {
                     return v;
                 }
-                let kmin = ((lo - LIMIT_SLACK - v) / 360.0).ceil();
-                let kmax = ((hi + LIMIT_SLACK - v) / 360.0).floor();
-                if kmin > kmax {
-                    // Out of range on every turn: `limits` reports it.
-                    return v;
-                }
-                let want = prev.map_or(0.0, |p| ((p - v) / 360.0).round());
-                v + 360.0 * want.clamp(kmin, kmax)
+                // Out of range on every turn: `limits` reports it.
+                turn_within(v, lo, hi, prev).unwrap_or(v)
             }
         }
     }
@@ -200,7 +176,7 @@ impl UnwrapRotary {
             }
             // Whole turns only, so the printed numbers shift by exact multiples of 360.
             let printed = cur + offsets[i];
-            let turns = ((printed - wrap180(printed)) / 360.0).round();
+            let turns = round((printed - wrap180(printed)) / 360.0);
             if turns == 0.0 {
                 continue;
             }

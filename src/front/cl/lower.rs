@@ -510,30 +510,15 @@ impl Lowerer {
         {
             return false;
         }
-        let mut v = [0.0f64; 6];
-        let mut n = 0;
         let rest = &code[5..];
-        let mut start = 0;
-        loop {
-            if n == 6 {
-                return false;
-            }
-            let end =
-                memchr::memchr(b',', &rest.as_bytes()[start..]).map_or(rest.len(), |i| start + i);
-            // Rust's parser also takes `inf` and `nan`: those are not finite and go the
-            // full way, which reports them.
-            // The G-code frontend's decimal reader: the same value as `str::parse`, with
-            // a fast path for the usual short decimals.
-            match crate::front::gcode::parse_decimal(rest[start..end].trim_ascii()) {
-                Some(x) if x.is_finite() => v[n] = x,
-                _ => return false,
-            }
-            n += 1;
-            if end == rest.len() {
-                break;
-            }
-            start = end + 1;
-        }
+        let mut v = [0.0f64; 6];
+        let n = match scan_values(rest.as_bytes(), &mut v) {
+            Some(n) => n,
+            None => match split_values(rest, &mut v) {
+                Some(n) => n,
+                None => return false,
+            },
+        };
         let axis = match n {
             3 => self.axis,
             6 => match unit(Vector3::new(v[3], v[4], v[5])) {
@@ -1499,6 +1484,56 @@ enum Point {
     Start,
     /// `GODLTA`: by the offset.
     Delta,
+}
+
+/// The values of a plain `GOTO/` argument list (`x,y,z[,i,j,k]`, plain decimals, spaces
+/// around them) into `v`, read in one pass; their count, or `None` for anything else
+/// (an exponent, a long number, a seventh value), which [`split_values`] then reads.
+fn scan_values(b: &[u8], v: &mut [f64; 6]) -> Option<usize> {
+    let skip = |mut at: usize| {
+        while b.get(at).is_some_and(u8::is_ascii_whitespace) {
+            at += 1;
+        }
+        at
+    };
+    let mut n = 0;
+    let mut at = 0;
+    loop {
+        let (x, end) = crate::front::gcode::scan_decimal(b, skip(at))?;
+        *v.get_mut(n)? = x;
+        n += 1;
+        at = skip(end);
+        match b.get(at) {
+            None => return Some(n),
+            Some(b',') => at += 1,
+            Some(_) => return None,
+        }
+    }
+}
+
+/// [`scan_values`] for any spelling `str::parse` takes (`1.E-3`): each field between
+/// commas, trimmed, as one number; `None` unless every field is a finite number and
+/// there are at most six.
+fn split_values(rest: &str, v: &mut [f64; 6]) -> Option<usize> {
+    let mut n = 0;
+    let mut start = 0;
+    loop {
+        if n == 6 {
+            return None;
+        }
+        let end = memchr::memchr(b',', &rest.as_bytes()[start..]).map_or(rest.len(), |i| start + i);
+        // Rust's parser also takes `inf` and `nan`: those are not finite and go the full
+        // way, which reports them.
+        match crate::front::gcode::parse_decimal(rest[start..end].trim_ascii()) {
+            Some(x) if x.is_finite() => v[n] = x,
+            _ => return None,
+        }
+        n += 1;
+        if end == rest.len() {
+            return Some(n);
+        }
+        start = end + 1;
+    }
 }
 
 fn unused_circle(stmt: &Statement, major: &str) -> Diagnostic {

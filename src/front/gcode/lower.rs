@@ -2206,6 +2206,47 @@ pub fn parse_decimal(s: &str) -> Option<f64> {
     Some(exact_decimal(mantissa, frac, negative))
 }
 
+/// Reads a plain decimal (sign, at most 15 digits, at most one point, at least one digit)
+/// at `b[at..]` and returns it with where it ends: the same value as [`parse_decimal`] on
+/// those bytes. `None` where it needs more (no digit, more digits, then the caller's full
+/// path decides); what follows the number (`,`, `e`, ...) is the caller's to read.
+///
+/// ```
+/// use ncpost::front::gcode::scan_decimal;
+/// assert_eq!(scan_decimal(b"GOTO/-1.25,3", 5), Some((-1.25, 10)));
+/// assert_eq!(scan_decimal(b".5e3", 0), Some((0.5, 2)));
+/// assert_eq!(scan_decimal(b"-,", 0), None);
+/// ```
+#[inline]
+pub fn scan_decimal(b: &[u8], mut at: usize) -> Option<(f64, usize)> {
+    let negative = match b.get(at) {
+        Some(b'-') => {
+            at += 1;
+            true
+        }
+        Some(b'+') => {
+            at += 1;
+            false
+        }
+        _ => false,
+    };
+    let mut mantissa = 0u64;
+    let whole = at;
+    at = read_digits(b, at, &mut mantissa);
+    let mut count = at - whole;
+    let mut frac = 0;
+    if b.get(at) == Some(&b'.') {
+        let start = at + 1;
+        at = read_digits(b, start, &mut mantissa);
+        frac = at - start;
+        count += frac;
+    }
+    if count == 0 || count > 15 {
+        return None;
+    }
+    Some((exact_decimal(mantissa, frac, negative), at))
+}
+
 /// Reads the ASCII digits of `b` from `at` into `mantissa` (wrapping: the caller counts
 /// the digits and refuses too many); returns where they end.
 fn read_digits(b: &[u8], mut at: usize, mantissa: &mut u64) -> usize {

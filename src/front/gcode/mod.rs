@@ -6,8 +6,8 @@
 //! positions they may change become unknown.
 
 pub mod ast;
-pub use lower::parse_decimal;
 pub(crate) use lower::{LowerState, Lowerer, MotionMode, oword_call};
+pub use lower::{parse_decimal, scan_decimal};
 pub mod lexer;
 mod lower;
 

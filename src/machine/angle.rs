@@ -1,0 +1,211 @@
+//! Whole turns of rotary angles (degrees): the nearest turn, the turns a limited axis
+//! allows, wrapping into (-180, 180].
+//!
+//! The x86-64 baseline has no rounding instruction (`roundsd` is SSE4.1), so `f64::round`,
+//! `floor` and `ceil` are library calls; every CL point of a 5-axis program rounds
+//! several angles. The versions here truncate through an integer instead, exactly: the
+//! same value and sign as the standard functions (checked against them in the tests).
+
+/// Below this magnitude a float's truncation fits an `i64` and the fraction left over is
+/// exact; above it (and for NaN) the standard function is used.
+const EXACT: f64 = 4.5e15;
+
+/// Whether `x` is below [`EXACT`] in magnitude (not NaN).
+#[inline(always)]
+fn exact(x: f64) -> bool {
+    x.abs() < EXACT
+}
+
+/// [`f64::trunc`], exactly, with the sign of `x` kept on zero.
+#[inline(always)]
+fn trunc(x: f64) -> f64 {
+    (x as i64 as f64).copysign(x)
+}
+
+/// [`f64::round`] (half away from zero), exactly.
+///
+/// ```
+/// use ncpost::machine::angle::round;
+/// assert_eq!(round(2.5), 3.0);
+/// assert_eq!(round(-2.5), -3.0);
+/// assert!(round(-0.2).is_sign_negative());
+/// ```
+#[inline]
+pub fn round(x: f64) -> f64 {
+    if !exact(x) {
+        return x.round();
+    }
+    let t = trunc(x);
+    let f = x - t;
+    let r = if f >= 0.5 {
+        t + 1.0
+    } else if f <= -0.5 {
+        t - 1.0
+    } else {
+        t
+    };
+    r.copysign(x)
+}
+
+/// [`f64::floor`], exactly.
+///
+/// ```
+/// use ncpost::machine::angle::floor;
+/// assert_eq!(floor(-0.5), -1.0);
+/// assert_eq!(floor(1.5), 1.0);
+/// ```
+#[inline]
+pub fn floor(x: f64) -> f64 {
+    if !exact(x) {
+        return x.floor();
+    }
+    let t = trunc(x);
+    (if t > x { t - 1.0 } else { t }).copysign(x)
+}
+
+/// [`f64::ceil`], exactly.
+///
+/// ```
+/// use ncpost::machine::angle::ceil;
+/// assert_eq!(ceil(-0.5), 0.0);
+/// assert!(ceil(-0.5).is_sign_negative());
+/// assert_eq!(ceil(1.5), 2.0);
+/// ```
+#[inline]
+pub fn ceil(x: f64) -> f64 {
+    if !exact(x) {
+        return x.ceil();
+    }
+    let t = trunc(x);
+    (if t < x { t + 1.0 } else { t }).copysign(x)
+}
+
+/// The angle `v + 360 k` nearest `target` (degrees).
+///
+/// ```
+/// use ncpost::machine::angle::near_turn;
+/// assert_eq!(near_turn(10.0, 700.0), 730.0);
+/// ```
+#[inline]
+pub fn near_turn(v: f64, target: f64) -> f64 {
+    v + 360.0 * round((target - v) / 360.0)
+}
+
+/// Tolerance of a rotary limit (degrees): a value this far outside still counts as in.
+pub const LIMIT_SLACK: f64 = 1e-9;
+
+/// The turn of `v` within `lo..=hi` (degrees, with [`LIMIT_SLACK`]) nearest `prev`, or
+/// the turn nearest zero when there is no previous value; `None` when no turn of `v` is
+/// within the limits.
+///
+/// ```
+/// use ncpost::machine::angle::turn_within;
+/// assert_eq!(turn_within(-170.0, -90.0, 270.0, Some(180.0)), Some(190.0));
+/// assert_eq!(turn_within(100.0, -90.0, 90.0, None), None);
+/// ```
+#[inline]
+pub fn turn_within(v: f64, lo: f64, hi: f64, prev: Option<f64>) -> Option<f64> {
+    let kmin = ceil((lo - LIMIT_SLACK - v) / 360.0);
+    let kmax = floor((hi + LIMIT_SLACK - v) / 360.0);
+    if kmin > kmax {
+        return None;
+    }
+    let want = prev.map_or(0.0, |p| round((p - v) / 360.0));
+    Some(v + 360.0 * want.clamp(kmin, kmax))
+}
+
+/// Wraps degrees into (-180, 180].
+///
+/// ```
+/// use ncpost::machine::angle::wrap180;
+/// assert_eq!(wrap180(190.0), -170.0);
+/// assert_eq!(wrap180(-180.0), 180.0);
+/// ```
+#[inline]
+pub fn wrap180(deg: f64) -> f64 {
+    // `%` is a library call (fmod); below two turns it is one exact subtraction (the
+    // operands are within a factor of two, so the difference is exact), with fmod's sign.
+    let a = deg.abs();
+    let mut d = if a < 360.0 {
+        deg
+    } else if a < 720.0 {
+        (a - 360.0).copysign(deg)
+    } else {
+        deg % 360.0
+    };
+    if d <= -180.0 {
+        d += 360.0;
+    } else if d > 180.0 {
+        d -= 360.0;
+    }
+    d
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn same(a: f64, b: f64) -> bool {
+        a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+    }
+
+    #[test]
+    fn edges_match_the_standard_functions() {
+        for x in [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.5,
+            -1.5,
+            0.49999999999999994,
+            -0.49999999999999994,
+            4503599627370495.5,
+            -4503599627370495.5,
+            4.5e15,
+            1e300,
+            -1e300,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NAN,
+            f64::MIN_POSITIVE,
+            -f64::MIN_POSITIVE,
+        ] {
+            assert!(same(round(x), x.round()), "round {x}");
+            assert!(same(floor(x), x.floor()), "floor {x}");
+            assert!(same(ceil(x), x.ceil()), "ceil {x}");
+        }
+        for d in [
+            0.0, -0.0, 180.0, -180.0, 360.0, -360.0, 540.0, -540.0, 719.9, -719.9, 720.0, -720.0,
+            1e6, -1e6,
+        ] {
+            assert!(same(wrap180(d), fmod_wrap(d)), "wrap {d}");
+        }
+    }
+
+    fn fmod_wrap(deg: f64) -> f64 {
+        let mut d = deg % 360.0;
+        if d <= -180.0 {
+            d += 360.0;
+        } else if d > 180.0 {
+            d -= 360.0;
+        }
+        d
+    }
+
+    proptest! {
+        #[test]
+        fn rounding_matches_the_standard_functions(x in proptest::num::f64::ANY, scale in 0i32..60) {
+            let y = x * 2f64.powi(-scale);
+            prop_assert!(same(round(y), y.round()), "round {y}");
+            prop_assert!(same(floor(y), y.floor()), "floor {y}");
+            prop_assert!(same(ceil(y), y.ceil()), "ceil {y}");
+        }
+
+        #[test]
+        fn wrapping_matches_fmod(d in -2000.0f64..2000.0) {
+            prop_assert!(same(wrap180(d), fmod_wrap(d)), "wrap {d}");
+        }
+    }
+}
