@@ -879,7 +879,9 @@ impl<T> Planner<T> {
                 s.accel = f64::INFINITY;
             }
             let p = Profile::new(&s, v0, v1);
-            if s.moves() {
+            // Only the trapezoid planner joins a move to the last one (a 100-byte copy
+            // per move otherwise).
+            if !constant && s.moves() {
                 self.last = Some((s, p.v_exit));
             }
             (s, p)
