@@ -60,11 +60,7 @@ fn pose_block(line: u32, kind: MotionKind, tip: [f64; 3], axis: Unit<Vector3<f64
         span(line),
         BlockKind::Motion(Motion {
             kind,
-            target: Target::Pose(Box::new(Pose {
-                tip: Point3::from(tip),
-                axis,
-                extra: Joints::default(),
-            })),
+            target: Target::Pose(Pose::new(Point3::from(tip), axis)),
             feed: feed(),
             written: ncpost::ir::AxisSet::XYZ,
             machine_frame: false,
@@ -208,6 +204,31 @@ fn ik_keeps_c_through_vertical_and_a_changes_sign() {
     let first = ac(&joints_of(&out[0])).0;
     let last = ac(&joints_of(&out[out.len() - 1])).0;
     assert!(first > 0.0 && last < 0.0);
+}
+
+/// Axes a pose carries besides the tip and the tool axis (an extruder, a secondary
+/// linear) come out as joints beside the five the kinematics computes; a pose cannot
+/// override X, Y, Z or the rotaries that way.
+#[test]
+fn ik_keeps_the_axes_a_pose_carries_besides_the_tool() {
+    let m = machine("emoc-x5");
+    let mut block = pose_block(1, MotionKind::Linear, [1.0, 2.0, 3.0], yz_axis(20.0));
+    let mut extra = Joints::default();
+    extra.set(Axis::E, 4.5);
+    extra.set(Axis::X, 99.0);
+    if let BlockKind::Motion(Motion {
+        target: Target::Pose(p),
+        ..
+    }) = &mut block.kind
+    {
+        p.extra_axes = Some(Box::new(extra));
+    }
+    let (out, diags) = run("ik", "", Some(&m), vec![block]);
+    assert!(diags.is_empty(), "{diags:?}");
+    let j = joints_of(&out[0]);
+    assert_eq!(j.get(Axis::E), Some(4.5));
+    let pose = fk(&m, &j);
+    assert!((pose.tip - Point3::new(1.0, 2.0, 3.0)).norm() < 1e-9, "{pose:?}");
 }
 
 #[test]

@@ -35,7 +35,7 @@ pub fn write_block(out: &mut String, block: &Block) {
                         " tip=({:.4}, {:.4}, {:.4}) axis=({:.6}, {:.6}, {:.6})",
                         p.tip.x, p.tip.y, p.tip.z, p.axis.x, p.axis.y, p.axis.z
                     );
-                    joints(out, &p.extra);
+                    joints(out, p.extra());
                 }
             }
             if let MotionKind::Arc(a) = m.kind {

@@ -191,6 +191,12 @@ pub struct Joints {
 }
 
 impl Joints {
+    /// No axis known.
+    pub const NONE: Joints = Joints {
+        values: [0.0; AXIS_COUNT],
+        known: AxisSet::EMPTY,
+    };
+
     /// The same axes known, at the same values; what unknown axes hold is not compared
     /// (zero by invariant 3). Cheaper than `==` on the hot paths that ask whether a
     /// position is the one they saw last.
@@ -269,25 +275,54 @@ impl Joints {
 }
 
 /// A tool pose in the part frame, before inverse kinematics.
-#[derive(Debug, Clone, Copy, PartialEq)]
+///
+/// Small enough to sit in a [`Target`] without making it larger than a joint vector, so
+/// a CL point needs no allocation: the rare axes besides the pose are boxed instead.
+#[derive(Debug, Clone, PartialEq)]
 pub struct Pose {
     /// Tool tip point, mm.
     pub tip: Point3<f64>,
     /// Unit tool axis, pointing from the tip into the spindle.
     pub axis: Unit<Vector3<f64>>,
-    /// Axes not covered by the pose (the extruder, secondary linears).
-    pub extra: Joints,
+    /// Axes not covered by the pose (the extruder, secondary linears); `None` when there
+    /// are none (see [`Pose::extra`]).
+    pub extra_axes: Option<Box<Joints>>,
 }
+
+impl Pose {
+    /// A pose with no other axes.
+    pub fn new(tip: Point3<f64>, axis: Unit<Vector3<f64>>) -> Pose {
+        Pose {
+            tip,
+            axis,
+            extra_axes: None,
+        }
+    }
+
+    /// The axes not covered by the pose ([`Joints::NONE`] when there are none).
+    ///
+    /// ```
+    /// use nalgebra::{Point3, Vector3};
+    /// use ncpost::ir::{Joints, Pose};
+    /// let p = Pose::new(Point3::origin(), Vector3::z_axis());
+    /// assert_eq!(p.extra(), &Joints::NONE);
+    /// ```
+    pub fn extra(&self) -> &Joints {
+        self.extra_axes.as_deref().unwrap_or(&Joints::NONE)
+    }
+}
+
+// A pose in a target costs no more room than a joint vector.
+#[cfg(target_pointer_width = "64")]
+const _: () = assert!(std::mem::size_of::<Pose>() <= std::mem::size_of::<Joints>());
 
 /// Where a motion goes.
 #[derive(Debug, Clone, PartialEq)]
 pub enum Target {
     /// Machine axis values (G-code input, or after inverse kinematics).
     Joints(Joints),
-    /// A tool pose (CL input, before inverse kinematics). Boxed: it is the larger
-    /// variant, and only the CL frontend and `ik` see it, while every block after them
-    /// is moved through each pass (a [`Block`] of at most 256 bytes is copied in one go).
-    Pose(Box<Pose>),
+    /// A tool pose (CL input, before inverse kinematics).
+    Pose(Pose),
 }
 
 impl Target {

@@ -37,7 +37,7 @@ impl Verifier {
                         if (p.axis.norm() - 1.0).abs() > 1e-9 {
                             return Err("pose tool axis is not a unit vector (invariant 4)".into());
                         }
-                        &p.extra
+                        p.extra()
                     }
                 };
                 check_joints(joints)?;

@@ -472,9 +472,10 @@ impl Ik {
         self.held = choice.held;
 
         let mut target = self.joints_at(&pose.tip, choice.angles);
-        for a in pose.extra.known.iter() {
+        let extra = pose.extra();
+        for a in extra.known.iter() {
             if !AxisSet::XYZ.contains(a) && !self.axes.contains(&a) {
-                target.set(a, pose.extra.values[a.index()]);
+                target.set(a, extra.values[a.index()]);
             }
         }
         let written = m.written.union(self.written());
@@ -577,7 +578,7 @@ impl Pass for Ik {
         match &block.kind {
             BlockKind::Motion(m) => match &m.target {
                 Target::Pose(pose) => {
-                    let pose = **pose;
+                    let pose = pose.clone();
                     self.pose_motion(block, pose, out);
                     return;
                 }

@@ -170,8 +170,10 @@ impl Mirror {
                         let mut axis = p.axis.into_inner();
                         axis[i] = -axis[i];
                         p.axis = nalgebra::Unit::new_normalize(axis);
-                        if p.extra.known.contains(a) {
-                            p.extra.values[i] = shift - p.extra.values[i];
+                        if let Some(extra) = p.extra_axes.as_deref_mut()
+                            && extra.known.contains(a)
+                        {
+                            extra.values[i] = shift - extra.values[i];
                         }
                     }
                 }

@@ -10,8 +10,8 @@ use super::source::{Probe, Statement};
 use super::{Options, Units, arc, cycle};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode, Joints, Motion,
-    MotionKind, Pose, Span, Target,
+    AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode, Motion, MotionKind,
+    Pose, Span, Target,
 };
 
 pub(super) const MM_PER_INCH: f64 = 25.4;
@@ -251,11 +251,7 @@ pub(super) fn motion_block(
         span,
         BlockKind::Motion(Motion {
             kind,
-            target: Target::Pose(Box::new(Pose {
-                tip,
-                axis,
-                extra: Joints::default(),
-            })),
+            target: Target::Pose(Pose::new(tip, axis)),
             feed,
             written: AxisSet::XYZ,
             machine_frame: false,
