@@ -228,7 +228,10 @@ fn ik_keeps_the_axes_a_pose_carries_besides_the_tool() {
     let j = joints_of(&out[0]);
     assert_eq!(j.get(Axis::E), Some(4.5));
     let pose = fk(&m, &j);
-    assert!((pose.tip - Point3::new(1.0, 2.0, 3.0)).norm() < 1e-9, "{pose:?}");
+    assert!(
+        (pose.tip - Point3::new(1.0, 2.0, 3.0)).norm() < 1e-9,
+        "{pose:?}"
+    );
 }
 
 #[test]

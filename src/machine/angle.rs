@@ -105,12 +105,19 @@ pub const LIMIT_SLACK: f64 = 1e-9;
 /// ```
 #[inline]
 pub fn turn_within(v: f64, lo: f64, hi: f64, prev: Option<f64>) -> Option<f64> {
-    let kmin = ceil((lo - LIMIT_SLACK - v) / 360.0);
-    let kmax = floor((hi + LIMIT_SLACK - v) / 360.0);
+    let (low, high) = (lo - LIMIT_SLACK, hi + LIMIT_SLACK);
+    let want = prev.map_or(0.0, |p| round((p - v) / 360.0));
+    // The usual case, `v` in range and the nearest turn: then `kmin <= 0 <= kmax` below
+    // (a difference of floats has the sign of the true one) and the clamp keeps `want`,
+    // so this is the same value without the two divisions.
+    if want == 0.0 && v >= low && v <= high {
+        return Some(v + 360.0 * want);
+    }
+    let kmin = ceil((low - v) / 360.0);
+    let kmax = floor((high - v) / 360.0);
     if kmin > kmax {
         return None;
     }
-    let want = prev.map_or(0.0, |p| round((p - v) / 360.0));
     Some(v + 360.0 * want.clamp(kmin, kmax))
 }
 
@@ -201,6 +208,32 @@ mod tests {
             prop_assert!(same(round(y), y.round()), "round {y}");
             prop_assert!(same(floor(y), y.floor()), "floor {y}");
             prop_assert!(same(ceil(y), y.ceil()), "ceil {y}");
+        }
+
+        #[test]
+        fn turn_within_matches_the_formula(
+            v in -1000.0f64..1000.0,
+            lo in -400.0f64..100.0,
+            span in 0.0f64..500.0,
+            prev in proptest::option::of(-2000.0f64..2000.0),
+            edge in 0u8..4,
+        ) {
+            let hi = lo + span;
+            // Values on the limits and at the slack, where the fast path's tests decide.
+            let v = match edge {
+                1 => lo,
+                2 => hi + LIMIT_SLACK,
+                3 => lo - 2.0 * LIMIT_SLACK,
+                _ => v,
+            };
+            let kmin = ((lo - LIMIT_SLACK - v) / 360.0).ceil();
+            let kmax = ((hi + LIMIT_SLACK - v) / 360.0).floor();
+            let expected = (kmin <= kmax).then(|| {
+                let want = prev.map_or(0.0, |p: f64| ((p - v) / 360.0).round());
+                v + 360.0 * want.clamp(kmin, kmax)
+            });
+            let got = turn_within(v, lo, hi, prev);
+            prop_assert_eq!(got.map(f64::to_bits), expected.map(f64::to_bits), "{:?} {:?}", got, expected);
         }
 
         #[test]
