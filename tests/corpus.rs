@@ -630,8 +630,8 @@ fn comments(blocks: &[Block]) -> Vec<(u32, String)> {
     let mut out = Vec::new();
     for b in blocks {
         let text = match &b.kind {
-            BlockKind::Verbatim(v) => Some(&v.text),
-            BlockKind::Command(c) => Some(&c.text),
+            BlockKind::Verbatim(v) => Some(v.text.as_str()),
+            BlockKind::Command(c) => Some(c.text.as_str()),
             _ => None,
         };
         if let Some(text) = text {

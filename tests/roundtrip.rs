@@ -301,7 +301,7 @@ fn expected_items<'a>(blocks: &'a [Block], backend: &Backend) -> Vec<Item<'a>> {
                         out.push(Item::Block {
                             block: b,
                             kind: Cow::Owned(BlockKind::Command(Command {
-                                text: kept,
+                                text: kept.into(),
                                 ..c.clone()
                             })),
                         });

@@ -1030,12 +1030,14 @@ fn strip_m99(text: &str) -> String {
 /// A call in the main program: the call and the text its columns refer to.
 fn main_call(block: &Block, options: &Options) -> Option<(Call, String)> {
     let text = match &block.kind {
-        BlockKind::Command(c) => &c.text,
-        BlockKind::Verbatim(v) if v.reason != crate::ir::VerbatimReason::Subprogram => &v.text,
+        BlockKind::Command(c) => c.text.as_str(),
+        BlockKind::Verbatim(v) if v.reason != crate::ir::VerbatimReason::Subprogram => {
+            v.text.as_str()
+        }
         _ => return None,
     };
     let call = classify(block, text, options)?;
-    Some((call, text.clone()))
+    Some((call, text.to_owned()))
 }
 
 /// A call in a body line `text`, lowered to `block`.

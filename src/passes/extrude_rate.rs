@@ -124,7 +124,7 @@ use crate::back::number::{printed, write_fixed};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints,
-    MotionKind, Span, Target,
+    MotionKind, Span, Target, Text,
 };
 use crate::machine::FeedRule;
 use crate::motion::{self, Model, Planner, Segment, Timed, Timing};
@@ -345,6 +345,8 @@ pub struct ExtrudeRate {
     /// The rpm command template split at its `{rpm}` placeholders (at least two parts).
     command: Vec<String>,
     stop_command: Option<String>,
+    /// Where [`ExtrudeRate::command_text`] writes (kept for its allocation).
+    text_buffer: String,
     /// Position as the input has it (E included).
     pos: Joints,
     /// G92 offsets in force (program = IR + offset).
@@ -441,6 +443,7 @@ impl ExtrudeRate {
             cap_rate,
             command: command.split("{rpm}").map(str::to_owned).collect(),
             stop_command: options.stop_command.clone(),
+            text_buffer: String::new(),
             pos: Joints::default(),
             offsets: [0.0; AXIS_COUNT],
             p_cache: None,
@@ -522,16 +525,17 @@ impl ExtrudeRate {
         }
     }
 
-    fn command_text(&self, rpm: f64) -> String {
+    fn command_text(&mut self, rpm: f64) -> Text {
         if rpm == 0.0
             && let Some(stop) = &self.stop_command
         {
-            return stop.clone();
+            return Text::from(stop);
         }
-        // The template's parts with the number between them, in one allocation: this
-        // runs for every rate change.
-        let mut text =
-            String::with_capacity(self.command.iter().map(String::len).sum::<usize>() + 16);
+        // The template's parts with the number between them, written in a buffer kept
+        // from call to call: this runs for every rate change, and the usual command
+        // (`M3 S19.053`) then needs no allocation at all (see `Text`).
+        let mut text = std::mem::take(&mut self.text_buffer);
+        text.clear();
         let mut number: Option<std::ops::Range<usize>> = None;
         for (i, part) in self.command.iter().enumerate() {
             if i > 0 {
@@ -548,7 +552,9 @@ impl ExtrudeRate {
             }
             text.push_str(part);
         }
-        text
+        let out = Text::from(text.as_str());
+        self.text_buffer = text;
+        out
     }
 
     /// Sets the screw to `rpm` (printed), issuing a command when it changes by more than

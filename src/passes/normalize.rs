@@ -325,7 +325,7 @@ impl Pass for Normalize {
                         } else {
                             match self.rewrite_command(&cmd.text, modes, span) {
                                 Ok(t) => {
-                                    cmd.text = t;
+                                    cmd.text = t.into();
                                     cmd.modes = Some(WrittenModes {
                                         inch: false,
                                         relative: false,

@@ -905,15 +905,15 @@ impl ValveLookahead {
 
     /// The command item of event `id`, and its block.
     fn marker(&mut self, ev: &Event, id: u64) -> (Item, Block) {
-        let text = if ev.open {
-            self.open_command.clone()
+        let text: &str = if ev.open {
+            &self.open_command
         } else {
-            self.close_command.clone()
+            &self.close_command
         };
         let block = Block::new(
             ev.span,
             BlockKind::Command(Command {
-                text,
+                text: text.into(),
                 modes: None,
                 clobbers: AxisSet::EMPTY,
             }),

@@ -233,7 +233,7 @@ fn comment(text: impl Into<String>) -> Comment {
 
 fn command(text: impl Into<String>) -> BlockKind {
     BlockKind::Command(Command {
-        text: text.into(),
+        text: text.into().into(),
         modes: None,
         clobbers: AxisSet::EMPTY,
     })

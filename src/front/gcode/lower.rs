@@ -604,7 +604,7 @@ impl Lowerer {
                     let mut block = Block::new(
                         span,
                         BlockKind::Command(Command {
-                            text: strip_line_number_and_comments(text),
+                            text: strip_line_number_and_comments(text).into(),
                             modes: None,
                             clobbers: clob,
                         }),
@@ -1378,7 +1378,7 @@ impl Lowerer {
                 && let BlockKind::Command(c) = &mut cmd.kind
             {
                 // `G28 X Z`, `G6 B20 R`: bare letters are arguments; keep the words as written.
-                c.text = strip_line_number_and_comments(text);
+                c.text = strip_line_number_and_comments(text).into();
             }
             blocks.push(cmd);
         } else if !named.is_empty()
@@ -1454,7 +1454,7 @@ impl Lowerer {
             v.sort_by_key(|w| w.start);
             let mut cmd = self.command(span, &v, &g_list, &m_list, AxisSet::EMPTY, false);
             if let BlockKind::Command(c) = &mut cmd.kind {
-                c.text = strip_line_number_and_comments(text);
+                c.text = strip_line_number_and_comments(text).into();
             }
             blocks.push(cmd);
         } else if !command_words.is_empty() {
@@ -1786,7 +1786,7 @@ impl Lowerer {
         Block::new(
             span,
             BlockKind::Command(Command {
-                text,
+                text: text.into(),
                 modes,
                 clobbers: clob,
             }),

@@ -93,7 +93,7 @@ fn command_block(span: Span, text: String) -> Block {
     Block::new(
         span,
         BlockKind::Command(crate::ir::Command {
-            text,
+            text: text.into(),
             modes: None,
             clobbers: AxisSet::EMPTY,
         }),
