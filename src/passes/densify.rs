@@ -584,19 +584,20 @@ impl Pass for Densify {
                 } && !m.machine_frame;
                 let machine_frame = m.machine_frame.then_some(m.written);
                 let end_node = self.node(&end);
+                // The nodes are borrowed, not copied: each is over 300 bytes.
                 if checked
-                    && let (Some(a), Some(b)) = (self.prev_node, end_node)
-                    && !self.within(&a, &b)
+                    && let (Some(a), Some(b)) = (&self.prev_node, &end_node)
+                    && !self.within(a, b)
                 {
                     let mut hit_limit = false;
                     if self.options.max_depth == 0 {
                         hit_limit = true;
                     } else {
                         let mid = self
-                            .turn_on_the_spot(&a, &b)
-                            .unwrap_or_else(|| self.midpoint(&a, &b));
-                        self.refine(m, block.span, &a, &mid, 1, false, &mut hit_limit, out);
-                        self.refine(m, block.span, &mid, &b, 1, true, &mut hit_limit, out);
+                            .turn_on_the_spot(a, b)
+                            .unwrap_or_else(|| self.midpoint(a, b));
+                        self.refine(m, block.span, a, &mid, 1, false, &mut hit_limit, out);
+                        self.refine(m, block.span, &mid, b, 1, true, &mut hit_limit, out);
                     }
                     if hit_limit {
                         out.diag(
