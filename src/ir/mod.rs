@@ -22,6 +22,8 @@
 pub mod dump;
 pub mod verify;
 
+use nalgebra::{Point3, Unit, Vector3};
+
 /// The words of a command: UTF-8 text kept in place up to 23 bytes (`M3 S19.053`,
 /// `M42 P0 S1`), shared on the heap beyond. It reads as a `&str`.
 ///
@@ -36,8 +38,6 @@ pub mod verify;
 /// assert!(t.starts_with("M3") && !t.is_heap_allocated());
 /// ```
 pub type Text = smol_str::SmolStr;
-
-use nalgebra::{Point3, Unit, Vector3};
 
 /// Where a block came from: the whole source line.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -9,6 +9,7 @@
 use nalgebra::{Matrix3, Point3, Rotation3, Unit, Vector3};
 use smallvec::SmallVec;
 
+use super::angle::wrap180;
 use super::{Layout, Machine, Mount};
 
 /// A tool pose in the part frame.
@@ -53,8 +54,6 @@ fn unit_of(m: &Machine, i: usize) -> Vector3<f64> {
         super::RotaryLetter::C => Vector3::z(),
     }
 }
-
-pub(crate) use super::angle::wrap180;
 
 /// The angle that turns `from` towards `to` about unit `w` (exact when both make the same
 /// angle with `w`, closest otherwise), radians; `None` when either lies along `w`.

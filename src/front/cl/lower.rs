@@ -11,7 +11,7 @@ use super::{Options, Units, arc, cycle};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode, Motion, MotionKind,
-    Pose, Span, Target,
+    Pose, Span, Target, Text,
 };
 
 pub(super) const MM_PER_INCH: f64 = 25.4;
@@ -231,9 +231,9 @@ fn comment(text: impl Into<String>) -> Comment {
     }
 }
 
-fn command(text: impl Into<String>) -> BlockKind {
+fn command(text: impl Into<Text>) -> BlockKind {
     BlockKind::Command(Command {
-        text: text.into().into(),
+        text: text.into(),
         modes: None,
         clobbers: AxisSet::EMPTY,
     })
@@ -508,12 +508,8 @@ impl Lowerer {
         }
         let rest = &code[5..];
         let mut v = [0.0f64; 6];
-        let n = match scan_values(rest.as_bytes(), &mut v) {
-            Some(n) => n,
-            None => match split_values(rest, &mut v) {
-                Some(n) => n,
-                None => return false,
-            },
+        let Some(n) = scan_values(rest.as_bytes(), &mut v) else {
+            return false;
         };
         let axis = match n {
             3 => self.axis,
@@ -1483,8 +1479,8 @@ enum Point {
 }
 
 /// The values of a plain `GOTO/` argument list (`x,y,z[,i,j,k]`, plain decimals, spaces
-/// around them) into `v`, read in one pass; their count, or `None` for anything else
-/// (an exponent, a long number, a seventh value), which [`split_values`] then reads.
+/// around them) into `v`, read in one pass; their count, or `None` for anything else (an
+/// exponent, `inf`, a seventh value), which the grammar then reads and reports.
 fn scan_values(b: &[u8], v: &mut [f64; 6]) -> Option<usize> {
     let skip = |mut at: usize| {
         while b.get(at).is_some_and(u8::is_ascii_whitespace) {
@@ -1504,31 +1500,6 @@ fn scan_values(b: &[u8], v: &mut [f64; 6]) -> Option<usize> {
             Some(b',') => at += 1,
             Some(_) => return None,
         }
-    }
-}
-
-/// [`scan_values`] for any spelling `str::parse` takes (`1.E-3`): each field between
-/// commas, trimmed, as one number; `None` unless every field is a finite number and
-/// there are at most six.
-fn split_values(rest: &str, v: &mut [f64; 6]) -> Option<usize> {
-    let mut n = 0;
-    let mut start = 0;
-    loop {
-        if n == 6 {
-            return None;
-        }
-        let end = memchr::memchr(b',', &rest.as_bytes()[start..]).map_or(rest.len(), |i| start + i);
-        // Rust's parser also takes `inf` and `nan`: those are not finite and go the full
-        // way, which reports them.
-        match crate::front::gcode::parse_decimal(rest[start..end].trim_ascii()) {
-            Some(x) if x.is_finite() => v[n] = x,
-            _ => return None,
-        }
-        n += 1;
-        if end == rest.len() {
-            return Some(n);
-        }
-        start = end + 1;
     }
 }
 

@@ -1593,37 +1593,13 @@ impl Lowerer {
                         return false;
                     }
                     let start = i;
-                    let mut j = i + 1;
-                    let negative = j < b.len() && b[j] == b'-';
-                    if j < b.len() && matches!(b[j], b'+' | b'-') {
-                        j += 1;
-                    }
-                    // The digits are read once, into the mantissa parse_decimal builds
-                    // (exact_decimal gives both the same bits).
-                    let mut mantissa: u64 = 0;
-                    let int_start = j;
-                    j = read_digits(b, j, &mut mantissa);
-                    let int_digits = j - int_start;
-                    let mut frac_digits = 0;
-                    if j < b.len() && b[j] == b'.' {
-                        let f = j + 1;
-                        j = read_digits(b, f, &mut mantissa);
-                        frac_digits = j - f;
-                    }
-                    if int_digits + frac_digits == 0
-                        || (j < b.len() && !matches!(b[j], b' ' | b'\t' | b'\r' | b';'))
-                    {
+                    let Some((value, j)) = scan_decimal(b, i + 1) else {
+                        return false;
+                    };
+                    if j < b.len() && !matches!(b[j], b' ' | b'\t' | b'\r' | b';') {
                         return false;
                     }
                     let w = &text[start..j];
-                    let value = if int_digits + frac_digits <= 15 {
-                        exact_decimal(mantissa, frac_digits, negative)
-                    } else {
-                        match parse_decimal(&w[1..]) {
-                            Some(v) => v,
-                            None => return false,
-                        }
-                    };
                     if !value.is_finite() || value.abs() > 1e12 {
                         return false;
                     }
@@ -2206,19 +2182,22 @@ pub fn parse_decimal(s: &str) -> Option<f64> {
     Some(exact_decimal(mantissa, frac, negative))
 }
 
-/// Reads a plain decimal (sign, at most 15 digits, at most one point, at least one digit)
-/// at `b[at..]` and returns it with where it ends: the same value as [`parse_decimal`] on
-/// those bytes. `None` where it needs more (no digit, more digits, then the caller's full
-/// path decides); what follows the number (`,`, `e`, ...) is the caller's to read.
+/// Reads a plain decimal (sign, digits, at most one point, at least one digit) at
+/// `b[at..]` and returns it with where it ends: the same value as [`parse_decimal`] on
+/// those bytes, read in the same pass that finds their end. `None` without a digit; what
+/// follows the number (`,`, `e`, a blank) is the caller's to read.
 ///
 /// ```
 /// use ncpost::front::gcode::scan_decimal;
 /// assert_eq!(scan_decimal(b"GOTO/-1.25,3", 5), Some((-1.25, 10)));
 /// assert_eq!(scan_decimal(b".5e3", 0), Some((0.5, 2)));
 /// assert_eq!(scan_decimal(b"-,", 0), None);
+/// assert_eq!(scan_decimal(b"0.12345678901234567", 0), Some((0.12345678901234567, 19)));
 /// ```
-#[inline]
+// Inlined: the G-code lexer's loop reads every number of every line through it.
+#[inline(always)]
 pub fn scan_decimal(b: &[u8], mut at: usize) -> Option<(f64, usize)> {
+    let start = at;
     let negative = match b.get(at) {
         Some(b'-') => {
             at += 1;
@@ -2241,10 +2220,20 @@ pub fn scan_decimal(b: &[u8], mut at: usize) -> Option<(f64, usize)> {
         frac = at - start;
         count += frac;
     }
-    if count == 0 || count > 15 {
-        return None;
+    match count {
+        0 => None,
+        1..=15 => Some((exact_decimal(mantissa, frac, negative), at)),
+        // The mantissa wrapped: the standard parser, on the same (ASCII) bytes.
+        _ => long_decimal(&b[start..at]).map(|v| (v, at)),
     }
-    Some((exact_decimal(mantissa, frac, negative), at))
+}
+
+/// [`parse_decimal`] on the bytes of a number too long for the exact fast path (rare;
+/// kept out of line so the callers' loops stay small).
+#[cold]
+#[inline(never)]
+fn long_decimal(b: &[u8]) -> Option<f64> {
+    std::str::from_utf8(b).ok().and_then(parse_decimal)
 }
 
 /// Reads the ASCII digits of `b` from `at` into `mantissa` (wrapping: the caller counts
