@@ -534,7 +534,7 @@ impl ExtrudeRate {
         // The template's parts with the number between them, written in a buffer kept
         // from call to call: this runs for every rate change, and the usual command
         // (`M3 S19.053`) then needs no allocation at all (see `Text`).
-        let mut text = std::mem::take(&mut self.text_buffer);
+        let text = &mut self.text_buffer;
         text.clear();
         let mut number: Option<std::ops::Range<usize>> = None;
         for (i, part) in self.command.iter().enumerate() {
@@ -543,7 +543,7 @@ impl ExtrudeRate {
                     Some(r) => text.extend_from_within(r.clone()),
                     None => {
                         let start = text.len();
-                        if !write_fixed(&mut text, rpm, self.options.rpm_decimals, true) {
+                        if !write_fixed(text, rpm, self.options.rpm_decimals, true) {
                             let _ = write!(text, "{rpm}");
                         }
                         number = Some(start..text.len());
@@ -552,9 +552,7 @@ impl ExtrudeRate {
             }
             text.push_str(part);
         }
-        let out = Text::from(text.as_str());
-        self.text_buffer = text;
-        out
+        Text::from(text.as_str())
     }
 
     /// Sets the screw to `rpm` (printed), issuing a command when it changes by more than
