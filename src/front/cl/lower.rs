@@ -434,7 +434,7 @@ impl Lowerer {
 
     fn lower(&mut self, stmt: &Statement, out: &mut Vec<Block>, diags: &mut Vec<Diagnostic>) {
         let code = stmt.code.as_str();
-        if self.plain_goto(stmt, code, out) {
+        if self.plain_goto(code, stmt.span, out) {
             return;
         }
         if code.trim().is_empty() {
@@ -492,8 +492,10 @@ impl Lowerer {
     /// Lowers the commonest statement, a plain `GOTO/x,y,z[,i,j,k]` with no arc, cycle or
     /// MULTAX/OFF in force, without the grammar: most lines of a 5-axis file are this.
     /// Returns false for anything else, which then takes the full path (and gets its
-    /// diagnostics there); both paths give the same block.
-    fn plain_goto(&mut self, stmt: &Statement, code: &str, out: &mut Vec<Block>) -> bool {
+    /// diagnostics there); both paths give the same block. It refuses blank lines and
+    /// every line with a `$` (a value list holds none), so the source may offer it a
+    /// line before building a statement of it.
+    pub(super) fn plain_goto(&mut self, code: &str, span: Span, out: &mut Vec<Block>) -> bool {
         // Bytes, not chars: this runs on every line, and CL numbers are ASCII.
         let code = code.trim_ascii();
         let Some(head) = code.get(..5) else {
@@ -529,7 +531,7 @@ impl Lowerer {
         } else {
             MotionKind::Linear
         };
-        out.push(motion_block(stmt.span, kind, tip, axis, self.feed));
+        out.push(motion_block(span, kind, tip, axis, self.feed));
         self.pos = Some(tip);
         self.after_goto = true;
         true
@@ -1491,7 +1493,7 @@ fn scan_values(b: &[u8], v: &mut [f64; 6]) -> Option<usize> {
     let mut n = 0;
     let mut at = 0;
     loop {
-        let (x, end) = crate::front::gcode::scan_decimal(b, skip(at))?;
+        let (x, end) = crate::front::gcode::scan_decimal_wide(b, skip(at))?;
         *v.get_mut(n)? = x;
         n += 1;
         at = skip(end);

@@ -206,9 +206,18 @@ impl<R: BufRead> Parser<R> {
                 break;
             }
             let join = !self.lower.is_triplet();
-            if self.source.next_statement(&mut self.stmt, join, diags) {
-                self.lower.statement(&self.stmt, out, diags);
-                continue;
+            let lower = &mut self.lower;
+            let mut quick = |text: &str, span| lower.plain_goto(text, span, out);
+            match self
+                .source
+                .next_statement(&mut self.stmt, join, diags, &mut quick)
+            {
+                source::Read::Statement => {
+                    self.lower.statement(&self.stmt, out, diags);
+                    continue;
+                }
+                source::Read::Taken => continue,
+                source::Read::End => {}
             }
             self.done = true;
             let counts = self.source.counts;

@@ -147,6 +147,17 @@ pub(super) struct Counts {
     pub saw_text: bool,
 }
 
+/// What [`Source::next_statement`] read.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Read {
+    /// A statement, in the `stmt` given.
+    Statement,
+    /// A line the `quick` reader took.
+    Taken,
+    /// The input ended.
+    End,
+}
+
 /// Reads statements from lines.
 pub(super) struct Source<R> {
     reader: LineReader<R>,
@@ -224,14 +235,22 @@ impl<R: BufRead> Source<R> {
         probe
     }
 
-    /// Reads the next statement into `stmt`; `false` at the end of the input. When `join`
-    /// is false (the triplet format) every line is a statement of its own.
+    /// Reads the next statement into `stmt`. When `join` is false (the triplet format)
+    /// every line is a statement of its own.
+    ///
+    /// When `join` is true and no statement is open, a line read from the input is first
+    /// offered to `quick` (its text and span), which may lower it directly and return
+    /// true: the line is then taken without being copied into `stmt`. Most lines of a
+    /// 5-axis file are plain `GOTO/`s, and building the statement cost more than
+    /// lowering it. `quick` must refuse blank lines and any line with a `$`
+    /// (continuation mark or `$$` comment), which only the statement handles.
     pub fn next_statement(
         &mut self,
         stmt: &mut Statement,
         join: bool,
         diags: &mut Vec<Diagnostic>,
-    ) -> bool {
+        quick: &mut impl FnMut(&str, Span) -> bool,
+    ) -> Read {
         stmt.clear();
         self.open = false;
         loop {
@@ -255,6 +274,13 @@ impl<R: BufRead> Source<R> {
                 break;
             } else {
                 match self.reader.next_line() {
+                    Ok(Some((RawLine::Text(text), span)))
+                        if join && stmt.segments.is_empty() && quick(text, span) =>
+                    {
+                        self.counts.lines += 1;
+                        self.counts.saw_text = true;
+                        return Read::Taken;
+                    }
                     Ok(Some((raw, span))) => take_line(
                         &mut self.counts,
                         &mut self.open,
@@ -280,14 +306,14 @@ impl<R: BufRead> Source<R> {
                 }
             };
             if complete {
-                return true;
+                return Read::Statement;
             }
         }
         if stmt.segments.is_empty() {
-            return false;
+            return Read::End;
         }
         stmt.open_at_end = self.open;
-        true
+        Read::Statement
     }
 }
 
@@ -452,7 +478,9 @@ mod tests {
         source.probe(&mut diags);
         let mut stmt = Statement::default();
         let mut out = Vec::new();
-        while source.next_statement(&mut stmt, true, &mut diags) {
+        while source.next_statement(&mut stmt, true, &mut diags, &mut |_, _| false)
+            == Read::Statement
+        {
             out.push((
                 stmt.code.clone(),
                 stmt.comments.clone(),
@@ -462,6 +490,39 @@ mod tests {
         }
         assert!(diags.is_empty(), "{diags:?}");
         out
+    }
+
+    #[test]
+    fn quick_lines_are_taken_and_counted_outside_statements_only() {
+        let src = "PARTNO/X\nGOTO/1,2,3\n\nGOTO/4,$\nGOTO/5\nGOTO/6,7,8\n";
+        let mut source = Source::new(src.as_bytes(), 1 << 20);
+        let mut diags = Vec::new();
+        // Nothing is probed: every line comes from the reader, where `quick` looks.
+        let mut stmt = Statement::default();
+        let mut taken = Vec::new();
+        let mut statements = Vec::new();
+        loop {
+            let mut quick = |text: &str, span: Span| {
+                let take = text.starts_with("GOTO/") && !text.contains('$');
+                if take {
+                    taken.push((text.to_string(), span.line));
+                }
+                take
+            };
+            match source.next_statement(&mut stmt, true, &mut diags, &mut quick) {
+                Read::Statement => statements.push(stmt.code.clone()),
+                Read::Taken => {}
+                Read::End => break,
+            }
+        }
+        assert_eq!(statements, ["PARTNO/X", "GOTO/4, GOTO/5"]);
+        // The line after an open `$` belongs to its statement, not to `quick`.
+        assert_eq!(
+            taken,
+            [("GOTO/1,2,3".to_string(), 2), ("GOTO/6,7,8".to_string(), 6)]
+        );
+        assert_eq!(source.counts.lines, 6);
+        assert!(source.counts.saw_text && diags.is_empty());
     }
 
     #[test]

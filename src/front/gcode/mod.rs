@@ -7,7 +7,7 @@
 
 pub mod ast;
 pub(crate) use lower::{LowerState, Lowerer, MotionMode, oword_call};
-pub use lower::{parse_decimal, scan_decimal};
+pub use lower::{parse_decimal, scan_decimal, scan_decimal_wide};
 pub mod lexer;
 mod lower;
 
