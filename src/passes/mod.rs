@@ -112,6 +112,36 @@ pub trait Pass: Send {
     fn finish(&mut self, _out: &mut Output<'_>) {}
 }
 
+/// [`Pass::run_batch`] for a pass that changes most blocks where they lie, one block in
+/// and the same block out: `edit` changes a block in place and returns true, or returns
+/// false and leaves it (and the pass) untouched, and then that block and the rest of the
+/// batch go through [`Pass::run`]. A batch edited whole is handed on as it is, without
+/// moving its blocks (a few hundred bytes each) into `run` and out again.
+pub fn edit_in_place<P: Pass + ?Sized>(
+    pass: &mut P,
+    blocks: &mut Vec<Block>,
+    out: &mut Output<'_>,
+    mut edit: impl FnMut(&mut P, &mut Block, &mut Vec<Diagnostic>) -> bool,
+) {
+    if out.blocks.is_empty() {
+        let mut edited = 0;
+        while let Some(block) = blocks.get_mut(edited) {
+            if !edit(pass, block, out.diags) {
+                break;
+            }
+            edited += 1;
+        }
+        if edited == blocks.len() {
+            std::mem::swap(blocks, out.blocks);
+            return;
+        }
+        out.blocks.extend(blocks.drain(..edited));
+    }
+    for block in blocks.drain(..) {
+        pass.run(block, out);
+    }
+}
+
 /// Builds a pass from its options table and the pipeline context.
 pub type BuildFn = fn(&toml::Table, &Context<'_>) -> Result<Box<dyn Pass>, String>;
 
@@ -219,4 +249,89 @@ pub fn parse_spec(spec: &str) -> Result<(String, toml::Table), String> {
         table.insert(key.to_string(), parsed);
     }
     Ok((name.to_string(), table))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ir::{BlockKind, Span};
+
+    /// Numbers each block it sees in its span's length; a block on a line divisible by
+    /// three is refused in place and gets a comment block put before it by `run`.
+    struct Numbering {
+        seen: u32,
+    }
+
+    impl Numbering {
+        fn edit(&mut self, block: &mut Block) -> bool {
+            if block.span.line % 3 == 0 {
+                return false;
+            }
+            self.seen += 1;
+            block.span.len = self.seen;
+            true
+        }
+    }
+
+    impl Pass for Numbering {
+        fn name(&self) -> &'static str {
+            "numbering"
+        }
+        fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
+            if block.span.line % 3 == 0 {
+                out.push(Block::new(Span::default(), BlockKind::Comment));
+                self.seen += 1;
+                block.span.len = self.seen;
+            } else {
+                self.edit(&mut block);
+            }
+            out.push(block);
+        }
+        fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+            edit_in_place(self, blocks, out, |p, b, _| p.edit(b));
+        }
+    }
+
+    fn lines(lines: &[u32]) -> Vec<Block> {
+        lines
+            .iter()
+            .map(|&line| {
+                let span = Span {
+                    line,
+                    ..Span::default()
+                };
+                Block::new(span, BlockKind::Comment)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn editing_in_place_gives_what_run_gives() {
+        for case in [
+            &[1, 2, 4][..],
+            &[1, 3, 4, 6, 7],
+            &[3, 1, 2],
+            &[],
+            &[2, 1, 3],
+        ] {
+            let (mut by_run, mut diags) = (Vec::new(), Vec::new());
+            let mut pass = Numbering { seen: 0 };
+            for b in lines(case) {
+                pass.run(b, &mut Output::new(&mut by_run, &mut diags));
+            }
+            let mut pass = Numbering { seen: 0 };
+            let mut blocks = lines(case);
+            let mut edited = Vec::new();
+            pass.run_batch(&mut blocks, &mut Output::new(&mut edited, &mut diags));
+            assert_eq!(edited, by_run, "{case:?}");
+            assert!(blocks.is_empty());
+        }
+        // Blocks already in the output stay first.
+        let mut pass = Numbering { seen: 0 };
+        let mut out = lines(&[9]);
+        let mut diags = Vec::new();
+        pass.run_batch(&mut lines(&[1, 2]), &mut Output::new(&mut out, &mut diags));
+        let got: Vec<(u32, u32)> = out.iter().map(|b| (b.span.line, b.span.len)).collect();
+        assert_eq!(got, [(9, 0), (1, 1), (2, 2)]);
+    }
 }

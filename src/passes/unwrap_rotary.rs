@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, Block, BlockKind, Joints, MotionKind, OffsetChange, OffsetCode, Target,
+    AXIS_COUNT, Axis, Block, BlockKind, Joints, MotionKind, OffsetChange, OffsetCode, Span, Target,
 };
 use crate::machine::angle::{LIMIT_SLACK, near_turn, round, turn_within, wrap180};
 
@@ -228,7 +228,7 @@ impl UnwrapRotary {
         change.offsets = self.offsets;
     }
 
-    fn check_float32(&mut self, j: &Joints, block: &Block, out: &mut Output<'_>) {
+    fn check_float32(&mut self, j: &Joints, span: Span, diags: &mut Vec<Diagnostic>) {
         if self.warned_float32 {
             return;
         }
@@ -245,7 +245,7 @@ impl UnwrapRotary {
                 } else {
                     "set `rebase = true` in the unwrap-rotary options to re-base the axis with G92 at rapids"
                 };
-                out.diag(
+                diags.push(
                     Diagnostic::warning(
                         "unwrap::float32",
                         format!(
@@ -254,7 +254,7 @@ impl UnwrapRotary {
                             2f64.powi(printed.abs().log2().floor() as i32 - 23)
                         ),
                     )
-                    .at_span(block.span)
+                    .at_span(span)
                     .with_help(help),
                 );
                 return;
@@ -269,11 +269,36 @@ impl Pass for UnwrapRotary {
     }
 
     fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
+        if let Some(change) = self.apply(&mut block, out.diags) {
+            out.push(Block::new(block.span, BlockKind::Offset(change)));
+        }
+        out.push(block);
+    }
+
+    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        super::edit_in_place(self, blocks, out, |pass, block, diags| {
+            // A rapid may need a G92 before it, which only `run` can add.
+            let may_rebase = pass.options.rebase
+                && matches!(&block.kind, BlockKind::Motion(m)
+                    if matches!(m.kind, MotionKind::Rapid) && !m.machine_frame);
+            if may_rebase {
+                return false;
+            }
+            let rebase = pass.apply(block, diags);
+            debug_assert!(rebase.is_none(), "only a rapid is re-based");
+            true
+        });
+    }
+}
+
+impl UnwrapRotary {
+    /// Unwraps `block` in place; returns the G92 re-basing that must go before it.
+    fn apply(&mut self, block: &mut Block, diags: &mut Vec<Diagnostic>) -> Option<OffsetChange> {
+        let mut rebase = None;
         match &mut block.kind {
             BlockKind::Motion(m) => {
                 let Target::Joints(j) = &mut m.target else {
-                    out.push(block);
-                    return;
+                    return None;
                 };
                 // A G53 move's written axes are machine coordinates, unknown afterwards.
                 let skip = if m.machine_frame {
@@ -285,20 +310,16 @@ impl Pass for UnwrapRotary {
                 self.unwrap_joints(j, skip);
                 self.prev.forget(skip);
                 let j = *j;
-                if self.options.rebase
-                    && matches!(m.kind, MotionKind::Rapid)
-                    && !m.machine_frame
-                    && let Some(change) = self.rebase(&before, &j)
-                {
-                    out.push(Block::new(block.span, BlockKind::Offset(change)));
+                if self.options.rebase && matches!(m.kind, MotionKind::Rapid) && !m.machine_frame {
+                    rebase = self.rebase(&before, &j);
                 }
-                self.check_float32(&j, &block, out);
+                self.check_float32(&j, block.span, diags);
             }
             BlockKind::Offset(change) => self.offset(change),
             BlockKind::Command(c) => self.prev.forget(c.clobbers),
             BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
             _ => {}
         }
-        out.push(block);
+        rebase
     }
 }
