@@ -264,7 +264,7 @@ mod tests {
 
     impl Numbering {
         fn edit(&mut self, block: &mut Block) -> bool {
-            if block.span.line % 3 == 0 {
+            if block.span.line.is_multiple_of(3) {
                 return false;
             }
             self.seen += 1;
@@ -278,7 +278,7 @@ mod tests {
             "numbering"
         }
         fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
-            if block.span.line % 3 == 0 {
+            if block.span.line.is_multiple_of(3) {
                 out.push(Block::new(Span::default(), BlockKind::Comment));
                 self.seen += 1;
                 block.span.len = self.seen;
