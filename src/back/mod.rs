@@ -232,6 +232,8 @@ pub(crate) struct Emitter<W: Write> {
     /// Grbl: inside a subprogram or control-flow run already reported (its further
     /// lines are not reported one by one).
     grbl_quiet: bool,
+    /// `fmt.decimals.axis(a)` for every axis, looked up by index on every word.
+    axis_decimals: [u8; AXIS_COUNT],
 }
 
 impl<W: Write> Emitter<W> {
@@ -239,7 +241,6 @@ impl<W: Write> Emitter<W> {
         Emitter {
             out,
             flavor,
-            fmt,
             line: Line(Vec::with_capacity(128)),
             number: 0,
             modes: Modes::default(),
@@ -254,6 +255,8 @@ impl<W: Write> Emitter<W> {
             e_units: Some(0),
             span: crate::ir::Span::default(),
             grbl_quiet: false,
+            axis_decimals: Axis::ALL.map(|a| fmt.decimals.axis(a)),
+            fmt,
         }
     }
 
@@ -517,7 +520,7 @@ impl<W: Write> Emitter<W> {
             if motion.machine_frame && !motion.written.contains(a) {
                 continue;
             }
-            let d = self.fmt.decimals.axis(a);
+            let d = self.axis_decimals[a.index()];
             if a == Axis::E && self.fmt.extrusion == Extrusion::Relative && !motion.machine_frame {
                 let u = to_units(v, d).ok_or_else(|| too_large('E', v, block))?;
                 e_target = Some(u);
@@ -564,7 +567,7 @@ impl<W: Write> Emitter<W> {
                 {
                     let prog = val + self.offsets[a.index()];
                     words[a.index()] = Some(
-                        to_units(prog, self.fmt.decimals.axis(a))
+                        to_units(prog, self.axis_decimals[a.index()])
                             .ok_or_else(|| too_large(a.letter(), prog, block))?,
                     );
                 }
@@ -579,7 +582,7 @@ impl<W: Write> Emitter<W> {
                 }
                 if let Some(v) = target.get(a) {
                     let prog = v + self.offsets[a.index()];
-                    words[a.index()] = to_units(prog, self.fmt.decimals.axis(a));
+                    words[a.index()] = to_units(prog, self.axis_decimals[a.index()]);
                 }
             }
         }
@@ -606,7 +609,7 @@ impl<W: Write> Emitter<W> {
         self.modes.motion = Some(code);
         for a in Axis::ALL {
             if let Some(u) = words[a.index()] {
-                self.word_units(a.letter(), u, self.fmt.decimals.axis(a));
+                self.word_units(a.letter(), u, self.axis_decimals[a.index()]);
             }
         }
         if let MotionKind::Arc(arc) = motion.kind {
