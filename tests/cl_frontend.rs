@@ -1191,6 +1191,30 @@ fn empty_input_is_an_error() {
     }
 }
 
+/// Past the lines the frontend looks at first, plain `GOTO/` lines are lowered straight
+/// from the reader's bytes: a bad byte there is still reported where it is, and the
+/// lines around it still lowered.
+#[test]
+fn bad_bytes_in_goto_lines_after_the_first_look() {
+    let mut src = b"UNITS/MM\n".to_vec();
+    for _ in 0..5000 {
+        src.extend_from_slice(b"GOTO/1,2,3\n");
+    }
+    src.extend_from_slice(b"GOTO/1,2,3\xff\nGOTO/1,\xc3\xa9,3\nGOTO/4,5,6\n");
+    let mut parser = Parser::new(&src[..], Options::default());
+    let mut diags = Vec::new();
+    let mut blocks = Vec::new();
+    while let Some(b) = parser.next_block(&mut diags) {
+        blocks.push(b);
+    }
+    assert_eq!(blocks.len(), 5001);
+    assert_eq!(diags.len(), 2, "{diags:?}");
+    expect(&diags[0], Severity::Error, "cl::not-utf8", 5002, 11);
+    // Valid UTF-8 that is not a number: the grammar's message, at the bad character.
+    assert_eq!(diags[1].severity, Severity::Error);
+    assert_eq!(diags[1].location.as_ref().map(|l| l.line), Some(5003));
+}
+
 #[test]
 fn bad_bytes_and_long_lines() {
     let mut parser = Parser::new(

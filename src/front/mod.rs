@@ -48,6 +48,10 @@ pub enum RawLine<'a> {
     },
 }
 
+/// A line's bytes without its terminator (`None` when it is over the limit) and its span,
+/// from [`LineReader::next_line_bytes`].
+pub type LineBytes<'a> = (Option<&'a [u8]>, Span);
+
 /// Reads lines with bounded memory: a line over `max_len` bytes is skipped, not buffered.
 pub struct LineReader<R> {
     inner: R,
@@ -79,6 +83,19 @@ impl<R: BufRead> LineReader<R> {
 
     /// The next line and its span, or `None` at the end of input.
     pub fn next_line(&mut self) -> io::Result<Option<(RawLine<'_>, Span)>> {
+        Ok(self.next_line_bytes()?.map(|(bytes, span)| {
+            let raw = match bytes {
+                Some(bytes) => decode(bytes),
+                None => RawLine::TooLong,
+            };
+            (raw, span)
+        }))
+    }
+
+    /// [`LineReader::next_line`] before the UTF-8 check: the line's bytes, or `None` for
+    /// a line over the limit. For a reader that can take some lines as bytes (all ASCII
+    /// when it takes them) and check the others with [`decode`].
+    pub fn next_line_bytes(&mut self) -> io::Result<Option<LineBytes<'_>>> {
         if self.pending > 0 {
             self.inner.consume(self.pending);
             self.pending = 0;
@@ -115,7 +132,7 @@ impl<R: BufRead> LineReader<R> {
                 line: self.line,
             };
             self.offset += taken as u64;
-            return Ok(Some((decode(bytes), span)));
+            return Ok(Some((Some(bytes), span)));
         }
         self.buf.clear();
         let start = self.offset;
@@ -178,7 +195,7 @@ impl<R: BufRead> LineReader<R> {
                 len: content.min(u32::MAX as usize) as u32,
                 line: self.line,
             };
-            return Ok(Some((RawLine::TooLong, span)));
+            return Ok(Some((None, span)));
         }
         let end = content;
         let bytes = &self.buf[..end];
@@ -187,12 +204,12 @@ impl<R: BufRead> LineReader<R> {
             len: end as u32,
             line: self.line,
         };
-        Ok(Some((decode(bytes), span)))
+        Ok(Some((Some(bytes), span)))
     }
 }
 
 /// A line's bytes as text, or why they are not.
-fn decode(bytes: &[u8]) -> RawLine<'_> {
+pub fn decode(bytes: &[u8]) -> RawLine<'_> {
     match std::str::from_utf8(bytes) {
         Ok(text) => RawLine::Text(text),
         Err(e) => RawLine::NotUtf8 {

@@ -434,7 +434,7 @@ impl Lowerer {
 
     fn lower(&mut self, stmt: &Statement, out: &mut Vec<Block>, diags: &mut Vec<Diagnostic>) {
         let code = stmt.code.as_str();
-        if self.plain_goto(code, stmt.span, out) {
+        if self.plain_goto(code.as_bytes(), stmt.span, out) {
             return;
         }
         if code.trim().is_empty() {
@@ -492,16 +492,16 @@ impl Lowerer {
     /// Lowers the commonest statement, a plain `GOTO/x,y,z[,i,j,k]` with no arc, cycle or
     /// MULTAX/OFF in force, without the grammar: most lines of a 5-axis file are this.
     /// Returns false for anything else, which then takes the full path (and gets its
-    /// diagnostics there); both paths give the same block. It refuses blank lines and
-    /// every line with a `$` (a value list holds none), so the source may offer it a
-    /// line before building a statement of it.
-    pub(super) fn plain_goto(&mut self, code: &str, span: Span, out: &mut Vec<Block>) -> bool {
+    /// diagnostics there); both paths give the same block. It refuses blank lines, every
+    /// line with a `$` (a value list holds none) and every byte that is not ASCII, so the
+    /// source may offer it a line before checking it and building a statement of it.
+    pub(super) fn plain_goto(&mut self, code: &[u8], span: Span, out: &mut Vec<Block>) -> bool {
         // Bytes, not chars: this runs on every line, and CL numbers are ASCII.
         let code = code.trim_ascii();
         let Some(head) = code.get(..5) else {
             return false;
         };
-        if !head.eq_ignore_ascii_case("GOTO/")
+        if !head.eq_ignore_ascii_case(b"GOTO/")
             || self.circle.is_some()
             || self.multax == Some(false)
             || self.cycle.active().is_some()
@@ -510,7 +510,7 @@ impl Lowerer {
         }
         let rest = &code[5..];
         let mut v = [0.0f64; 6];
-        let Some(n) = scan_values(rest.as_bytes(), &mut v) else {
+        let Some(n) = scan_values(rest, &mut v) else {
             return false;
         };
         let axis = match n {

@@ -207,7 +207,7 @@ impl<R: BufRead> Parser<R> {
             }
             let join = !self.lower.is_triplet();
             let lower = &mut self.lower;
-            let mut quick = |text: &str, span| lower.plain_goto(text, span, out);
+            let mut quick = |bytes: &[u8], span| lower.plain_goto(bytes, span, out);
             match self
                 .source
                 .next_statement(&mut self.stmt, join, diags, &mut quick)

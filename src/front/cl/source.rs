@@ -5,7 +5,7 @@ use std::collections::VecDeque;
 use std::io::BufRead;
 
 use crate::diag::Diagnostic;
-use crate::front::{LineReader, RawLine};
+use crate::front::{LineReader, RawLine, decode};
 use crate::ir::Span;
 
 /// Lines looked at, at most, before the first statement is lowered.
@@ -239,17 +239,19 @@ impl<R: BufRead> Source<R> {
     /// every line is a statement of its own.
     ///
     /// When `join` is true and no statement is open, a line read from the input is first
-    /// offered to `quick` (its text and span), which may lower it directly and return
-    /// true: the line is then taken without being copied into `stmt`. Most lines of a
+    /// offered to `quick` (its bytes, not yet checked for UTF-8, and its span), which may
+    /// lower it directly and return true: the line is then taken without being checked
+    /// or copied into `stmt`. Most lines of a
     /// 5-axis file are plain `GOTO/`s, and building the statement cost more than
-    /// lowering it. `quick` must refuse blank lines and any line with a `$`
-    /// (continuation mark or `$$` comment), which only the statement handles.
+    /// lowering it. `quick` must refuse blank lines, any line with a `$` (continuation
+    /// mark or `$$` comment), which only the statement handles, and any byte that is not
+    /// ASCII (the UTF-8 check reports those).
     pub fn next_statement(
         &mut self,
         stmt: &mut Statement,
         join: bool,
         diags: &mut Vec<Diagnostic>,
-        quick: &mut impl FnMut(&str, Span) -> bool,
+        quick: &mut impl FnMut(&[u8], Span) -> bool,
     ) -> Read {
         stmt.clear();
         self.open = false;
@@ -273,18 +275,18 @@ impl<R: BufRead> Source<R> {
             } else if self.done {
                 break;
             } else {
-                match self.reader.next_line() {
-                    Ok(Some((RawLine::Text(text), span)))
-                        if join && stmt.segments.is_empty() && quick(text, span) =>
+                match self.reader.next_line_bytes() {
+                    Ok(Some((Some(bytes), span)))
+                        if join && stmt.segments.is_empty() && quick(bytes, span) =>
                     {
                         self.counts.lines += 1;
                         self.counts.saw_text = true;
                         return Read::Taken;
                     }
-                    Ok(Some((raw, span))) => take_line(
+                    Ok(Some((bytes, span))) => take_line(
                         &mut self.counts,
                         &mut self.open,
-                        raw,
+                        bytes.map_or(RawLine::TooLong, decode),
                         span,
                         stmt,
                         join,
@@ -502,10 +504,10 @@ mod tests {
         let mut taken = Vec::new();
         let mut statements = Vec::new();
         loop {
-            let mut quick = |text: &str, span: Span| {
-                let take = text.starts_with("GOTO/") && !text.contains('$');
+            let mut quick = |bytes: &[u8], span: Span| {
+                let take = bytes.starts_with(b"GOTO/") && !bytes.contains(&b'$');
                 if take {
-                    taken.push((text.to_string(), span.line));
+                    taken.push((String::from_utf8_lossy(bytes).into_owned(), span.line));
                 }
                 take
             };
