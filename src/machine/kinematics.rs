@@ -44,14 +44,64 @@ struct Condition {
     sb: f64,
 }
 
+/// The orientation condition `Rot(w1, s_a φ[ia]) p = Rot(w2, s_b φ[ib]) q` of a layout
+/// with the tool axis left out (it is `p` or `q`, the other one is Z), from
+/// [`Machine::inverse_layout`] for [`Machine::inverse_with`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InverseLayout {
+    /// Coordinate index of `w1` (every rotary turns about X, Y or Z).
+    w1: usize,
+    ia: usize,
+    sa: f64,
+    /// Coordinate index of `w2`.
+    w2: usize,
+    ib: usize,
+    sb: f64,
+    /// The tool axis is `p` (and `q` is Z); otherwise `p` is Z and `q` the tool axis.
+    axis_is_p: bool,
+}
+
+/// The orientations [`Machine::inverse_with`] found: those of [`Machine::inverse`], in its
+/// order, with [`Machine::singularity_cos`] of the same axis.
+#[derive(Debug, Clone, Copy)]
+pub struct Solutions {
+    found: [Orientation; 2],
+    len: usize,
+    /// [`Machine::singularity_cos`] of the tool axis.
+    pub singularity_cos: f64,
+}
+
+impl Solutions {
+    /// No orientation.
+    const NONE: Solutions = Solutions {
+        found: [Orientation {
+            angles: [0.0; 2],
+            free: None,
+        }; 2],
+        len: 0,
+        singularity_cos: 0.0,
+    };
+
+    /// The orientations, at most two.
+    pub fn orientations(&self) -> &[Orientation] {
+        &self.found[..self.len]
+    }
+
+    fn push(&mut self, o: Orientation) {
+        self.found[self.len] = o;
+        self.len += 1;
+    }
+}
+
 /// Below this, a vector's component across a rotation axis is treated as zero.
 const DEGENERATE: f64 = 1e-12;
 
-fn unit_of(m: &Machine, i: usize) -> Vector3<f64> {
+/// The coordinate index (0 = X, 1 = Y, 2 = Z) of the direction rotary `i` turns about.
+fn letter_index(m: &Machine, i: usize) -> usize {
     match m.rotary[i].axis {
-        super::RotaryLetter::A => Vector3::x(),
-        super::RotaryLetter::B => Vector3::y(),
-        super::RotaryLetter::C => Vector3::z(),
+        super::RotaryLetter::A => 0,
+        super::RotaryLetter::B => 1,
+        super::RotaryLetter::C => 2,
     }
 }
 
@@ -64,6 +114,39 @@ fn angle_about(w: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> Opti
         return None;
     }
     Some(w.dot(&f.cross(&t)).atan2(f.dot(&t)))
+}
+
+/// The `atan2` arguments (y, x) of [`angle_about`] for the coordinate axis `i`, from the
+/// components across it; `None` when either vector lies along the axis, or when y is zero
+/// (its sign, which the general computation may set otherwise, decides ±π there).
+fn coordinate_angle_args(i: usize, from: &[f64; 3], to: &[f64; 3]) -> Option<(f64, f64)> {
+    let (j, k) = ((i + 1) % 3, (i + 2) % 3);
+    let across_from = from[j] * from[j] + from[k] * from[k];
+    let across_to = to[j] * to[j] + to[k] * to[k];
+    if across_from < DEGENERATE || across_to < DEGENERATE {
+        return None;
+    }
+    let y = from[j] * to[k] - from[k] * to[j];
+    let x = from[j] * to[j] + from[k] * to[k];
+    (y != 0.0).then_some((y, x))
+}
+
+/// `y.atan2(x)` for `args = (y, x)`, taken from an earlier result `(y0, x0, angle)` when
+/// the arguments are the same but perhaps for the sign of y (atan2 is odd in y: the
+/// second solution's β often differs only so).
+fn atan2_again(args: (f64, f64), earlier: Option<(f64, f64, f64)>) -> f64 {
+    let (y, x) = args;
+    if let Some((y0, x0, angle)) = earlier
+        && x.to_bits() == x0.to_bits()
+    {
+        if y.to_bits() == y0.to_bits() {
+            return angle;
+        }
+        if y.to_bits() == (-y0).to_bits() {
+            return -angle;
+        }
+    }
+    y.atan2(x)
 }
 
 impl Machine {
@@ -198,30 +281,29 @@ impl Machine {
         [xyz.x, xyz.y, xyz.z]
     }
 
-    fn condition(&self, axis: &Vector3<f64>) -> Condition {
-        let z = Vector3::z();
+    /// The machine's orientation condition without the tool axis in it, for
+    /// [`Machine::inverse_with`] (a pass that solves every block works it out once).
+    pub fn inverse_layout(&self) -> InverseLayout {
         match self.layout() {
             // R1 R2 t = z  ⇔  Rot(u2, φ2) t = Rot(u1, -φ1) z
-            Layout::TableTable => Condition {
-                w1: unit_of(self, 1),
-                p: *axis,
+            Layout::TableTable => InverseLayout {
+                w1: letter_index(self, 1),
                 ia: 1,
                 sa: 1.0,
-                w2: unit_of(self, 0),
-                q: z,
+                w2: letter_index(self, 0),
                 ib: 0,
                 sb: -1.0,
+                axis_is_p: true,
             },
             // t = R1 R2 z  ⇔  Rot(u2, φ2) z = Rot(u1, -φ1) t
-            Layout::HeadHead => Condition {
-                w1: unit_of(self, 1),
-                p: z,
+            Layout::HeadHead => InverseLayout {
+                w1: letter_index(self, 1),
                 ia: 1,
                 sa: 1.0,
-                w2: unit_of(self, 0),
-                q: *axis,
+                w2: letter_index(self, 0),
                 ib: 0,
                 sb: -1.0,
+                axis_is_p: false,
             },
             // Rt t = Rh z
             Layout::HeadTable => {
@@ -230,23 +312,113 @@ impl Machine {
                 } else {
                     (1, 0)
                 };
-                Condition {
-                    w1: unit_of(self, ti),
-                    p: *axis,
+                InverseLayout {
+                    w1: letter_index(self, ti),
                     ia: ti,
                     sa: 1.0,
-                    w2: unit_of(self, hi),
-                    q: z,
+                    w2: letter_index(self, hi),
                     ib: hi,
                     sb: 1.0,
+                    axis_is_p: true,
                 }
             }
+        }
+    }
+
+    fn condition(&self, axis: &Vector3<f64>) -> Condition {
+        let l = self.inverse_layout();
+        let z = Vector3::z();
+        let (p, q) = if l.axis_is_p { (*axis, z) } else { (z, *axis) };
+        Condition {
+            w1: Vector3::ith(l.w1, 1.0),
+            p,
+            ia: l.ia,
+            sa: l.sa,
+            w2: Vector3::ith(l.w2, 1.0),
+            q,
+            ib: l.ib,
+            sb: l.sb,
         }
     }
 
     /// Every rotary orientation (up to two) that points the tool along `axis` (part frame,
     /// unit); empty when the axis pair cannot reach it. Limits are not applied here.
     pub fn inverse(&self, axis: Unit<Vector3<f64>>) -> SmallVec<[Orientation; 2]> {
+        let found = self.inverse_with(&self.inverse_layout(), axis);
+        SmallVec::from_slice(found.orientations())
+    }
+
+    /// [`Machine::inverse`] with the machine's [`Machine::inverse_layout`] worked out
+    /// beforehand, and the vector algebra written out: every rotary turns about X, Y or Z,
+    /// so a product with a rotation axis is a pick of components. The values are those of
+    /// the general vector solution to the bit: a product with 0 or 1 left out changes at
+    /// most the sign of a zero, and where that sign could show (an `atan2` of zero, a
+    /// degenerate case) the general solution runs instead.
+    pub fn inverse_with(&self, layout: &InverseLayout, axis: Unit<Vector3<f64>>) -> Solutions {
+        let t = [axis.x, axis.y, axis.z];
+        // Bounded components keep every product finite, as the left-out ones were
+        // (0 · ∞ would not be 0).
+        if !t.iter().all(|v| v.abs() <= 2.0) {
+            return self.inverse_general(axis);
+        }
+        let z = [0.0, 0.0, 1.0];
+        let (p, q) = if layout.axis_is_p { (t, z) } else { (z, t) };
+        let (i1, i2) = (layout.w1, layout.w2);
+        let third = 3 - i1 - i2;
+        // w1 × w2 is ±e_third, + when w1, w2 follow X, Y, Z cyclically.
+        let normal = if (i1 + 1) % 3 == i2 { 1.0 } else { -1.0 };
+        // Perpendicular axes: w1·w2 = 0, so the common vector is x w1 + y w2 ± zc w1×w2
+        // with x = w1·p and y = w2·q.
+        let x = p[i1];
+        let y = q[i2];
+        let mut out = Solutions::NONE;
+        out.singularity_cos = x.abs().max(y.abs()).min(1.0);
+        let z2 = 1.0 - x * x - y * y;
+        // Rounding makes an exactly reachable boundary orientation slightly negative.
+        if z2 < -1e-12 {
+            return out;
+        }
+        let zc = z2.max(0.0).sqrt();
+        let signs: &[f64] = if zc > 0.0 { &[1.0, -1.0] } else { &[1.0] };
+        // The first solution's atan2 arguments and results, (y, x, angle) for α and β.
+        let mut first: Option<[(f64, f64, f64); 2]> = None;
+        for &s in signs {
+            let mut common = [0.0; 3];
+            common[i1] = x;
+            common[i2] = y;
+            common[third] = normal * (s * zc);
+            let (Some(alpha), Some(beta)) = (
+                coordinate_angle_args(i1, &p, &common),
+                coordinate_angle_args(i2, &q, &common),
+            ) else {
+                return self.inverse_general(axis);
+            };
+            let alpha = (alpha.0, alpha.1, atan2_again(alpha, first.map(|f| f[0])));
+            let beta = (beta.0, beta.1, atan2_again(beta, first.map(|f| f[1])));
+            first = Some([alpha, beta]);
+            let mut phys = [0.0; 2];
+            phys[layout.ia] = layout.sa * alpha.2;
+            phys[layout.ib] = layout.sb * beta.2;
+            out.push(Orientation {
+                angles: [self.joint(0, phys[0]), self.joint(1, phys[1])],
+                free: None,
+            });
+        }
+        out
+    }
+
+    /// [`Machine::inverse_with`] by vector algebra, for any rotation axes.
+    fn inverse_general(&self, axis: Unit<Vector3<f64>>) -> Solutions {
+        let mut out = Solutions::NONE;
+        for o in self.inverse_vectors(axis) {
+            out.push(o);
+        }
+        out.singularity_cos = self.singularity_cos(axis);
+        out
+    }
+
+    /// The Paden–Kahan solution of [`Machine::inverse`] in vectors.
+    fn inverse_vectors(&self, axis: Unit<Vector3<f64>>) -> SmallVec<[Orientation; 2]> {
         let c = self.condition(&axis);
         let k = c.w1.dot(&c.w2);
         let n = 1.0 - k * k;
@@ -348,6 +520,107 @@ impl Machine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// The built-in machines, each also with calibration offsets (other joint values at
+    /// the kinematic zero) and flipped directions.
+    fn machines() -> Vec<Machine> {
+        let mut out = Vec::new();
+        for name in ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"] {
+            let text = std::fs::read_to_string(format!("passes/{name}.toml")).unwrap();
+            let m = crate::preset::Preset::from_toml(&text)
+                .unwrap()
+                .machine
+                .unwrap();
+            let mut other = m.clone();
+            other.rotary[0].zero_offset = 3.25;
+            other.rotary[1].zero_offset = -17.5;
+            other.rotary[0].direction *= -1.0;
+            out.push(m);
+            out.push(other);
+        }
+        out
+    }
+
+    /// Whether both lists hold the same orientations to the bit.
+    fn same_bits(a: &[Orientation], b: &[Orientation]) -> bool {
+        a.len() == b.len()
+            && a.iter().zip(b).all(|(x, y)| {
+                x.free == y.free
+                    && x.angles[0].to_bits() == y.angles[0].to_bits()
+                    && x.angles[1].to_bits() == y.angles[1].to_bits()
+            })
+    }
+
+    fn check_coordinate_solution(axis: Vector3<f64>) -> Result<(), TestCaseError> {
+        let axis = Unit::new_normalize(axis);
+        for m in machines() {
+            let fast = m.inverse_with(&m.inverse_layout(), axis);
+            let general = m.inverse_vectors(axis);
+            prop_assert!(
+                same_bits(fast.orientations(), &general),
+                "{}: {axis:?}: {:?} vs {general:?}",
+                m.name,
+                fast.orientations()
+            );
+            prop_assert_eq!(
+                fast.singularity_cos.to_bits(),
+                m.singularity_cos(axis).to_bits()
+            );
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn coordinate_solution_is_the_vector_one_on_special_axes() {
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        for axis in [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [-0.0, -0.0, 1.0],
+            [1.0, 0.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, -1.0, -0.0],
+            [0.6, 0.0, 0.8],
+            [-0.6, -0.0, 0.8],
+            [0.0, 0.6, -0.8],
+            [s, s, 0.0],
+            [s, -s, 0.0],
+            [0.0, s, s],
+            [s, 0.0, -s],
+            [1e-9, 0.0, 1.0],
+            [0.0, -1e-9, 1.0],
+        ] {
+            check_coordinate_solution(Vector3::from(axis)).unwrap();
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(3000))]
+
+        /// The written-out solution is the vector one to the bit, zeros and all.
+        #[test]
+        fn coordinate_solution_is_the_vector_one(
+            x in -1.0f64..1.0, y in -1.0f64..1.0, z in -1.0f64..1.0,
+            zeroed in 0usize..8,
+        ) {
+            let mut v = [x, y, z];
+            for (i, c) in v.iter_mut().enumerate() {
+                if zeroed & (1 << i) != 0 && zeroed != 7 {
+                    *c = 0.0;
+                }
+            }
+            prop_assume!(Vector3::from(v).norm() > 1e-6);
+            check_coordinate_solution(Vector3::from(v))?;
+        }
+
+        /// `atan2` is odd in y to the bit, which the second solution's β relies on.
+        #[test]
+        fn atan2_is_odd_in_y(y in -10.0f64..10.0, x in -10.0f64..10.0) {
+            prop_assert_eq!((-y).atan2(x).to_bits(), (-(y.atan2(x))).to_bits());
+        }
+    }
 
     #[test]
     fn wrap180_range() {

@@ -42,7 +42,7 @@ use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Pose, Target,
 };
 use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within};
-use crate::machine::{Machine, Prefer};
+use crate::machine::{InverseLayout, Machine, Prefer};
 
 /// What `ik` does where the path must flip to the other solution in a cutting move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -149,6 +149,10 @@ pub struct Ik {
     last_axis: Option<([f64; 2], Unit<Vector3<f64>>)>,
     /// cos(singularity_cone).
     cone_cos: f64,
+    /// The machine's orientation condition, worked out once.
+    layout: InverseLayout,
+    /// The cosine of an axis turn surely below [`WALK_STEP`].
+    within_step_cos: f64,
 }
 
 impl Ik {
@@ -158,6 +162,7 @@ impl Ik {
         machine.check()?;
         let axes = machine.rotary_axes();
         let cone_cos = options.singularity_cone.to_radians().cos();
+        let layout = machine.inverse_layout();
         Ok(Ik {
             machine,
             options,
@@ -166,6 +171,8 @@ impl Ik {
             held: None,
             last_axis: None,
             cone_cos,
+            layout,
+            within_step_cos: (WALK_STEP * (1.0 - 1e-6)).to_radians().cos(),
         })
     }
 
@@ -229,6 +236,12 @@ impl Ik {
             Some((angles, axis)) if angles == [p0, p1] => axis,
             _ => self.machine.forward(&[0.0; 3], [p0, p1]).axis,
         };
+        // Most blocks turn the axis far less than a step: tell that from the cosine (the
+        // one `angle` takes the arccosine of) against a cone a little narrower than a step,
+        // so that acos rounding cannot matter.
+        if from.dot(&axis) / (from.norm() * axis.norm()) >= self.within_step_cos {
+            return prev;
+        }
         let turn = from.angle(&axis).to_degrees();
         if turn <= WALK_STEP || turn > 180.0 - WALK_STEP {
             return prev;
@@ -241,7 +254,7 @@ impl Ik {
                 return prev;
             };
             let mut best: Option<([f64; 2], (f64, f64))> = None;
-            for o in &self.machine.inverse(ax) {
+            for o in self.machine.inverse_with(&self.layout, ax).orientations() {
                 let mut a = [
                     near_turn(o.angles[0], cur[0]),
                     near_turn(o.angles[1], cur[1]),
@@ -270,9 +283,10 @@ impl Ik {
         } else {
             actual
         };
-        let sols = self.machine.inverse(axis);
+        let solutions = self.machine.inverse_with(&self.layout, axis);
+        let sols = solutions.orientations();
         let free = sols.iter().find_map(|o| o.free);
-        if free.is_some() || self.machine.singularity_cos(axis) > self.cone_cos {
+        if free.is_some() || solutions.singularity_cos > self.cone_cos {
             let k = free.unwrap_or_else(|| self.machine.singular_rotary(axis));
             if let Some(pk) = prev[k] {
                 let o = self.machine.hold(axis, k, pk);
@@ -293,7 +307,7 @@ impl Ik {
         // ignoring the limits.
         let mut best: Option<([f64; 2], (f64, f64))> = None;
         let mut nearest: Option<([f64; 2], (f64, f64))> = None;
-        for o in &sols {
+        for o in sols {
             let unlimited =
                 [0, 1].map(|i| prev[i].map_or(o.angles[i], |p| near_turn(o.angles[i], p)));
             let c = self.cost(unlimited, prev);
