@@ -41,7 +41,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Pose, Target,
 };
-use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within};
+use crate::machine::angle::{LIMIT_SLACK, near_turn, near_turn_and_within, turn_within};
 use crate::machine::{InverseLayout, Machine, Prefer};
 
 /// What `ik` does where the path must flip to the other solution in a cutting move.
@@ -153,6 +153,8 @@ pub struct Ik {
     layout: InverseLayout,
     /// The cosine of an axis turn surely below [`WALK_STEP`].
     within_step_cos: f64,
+    /// The rotaries' limits (`None`: cyclic), listing order.
+    limits: [Option<(f64, f64)>; 2],
 }
 
 impl Ik {
@@ -163,6 +165,7 @@ impl Ik {
         let axes = machine.rotary_axes();
         let cone_cos = options.singularity_cone.to_radians().cos();
         let layout = machine.inverse_layout();
+        let limits = axes.map(|a| machine.limits(a));
         Ok(Ik {
             machine,
             options,
@@ -173,6 +176,7 @@ impl Ik {
             cone_cos,
             layout,
             within_step_cos: (WALK_STEP * (1.0 - 1e-6)).to_radians().cos(),
+            limits,
         })
     }
 
@@ -183,9 +187,23 @@ impl Ik {
     /// Rotary `i` at `v + 360 k` inside its limits, nearest `prev` (nearest `v` without
     /// one); `None` when no turn of `v` is inside.
     fn in_limits(&self, i: usize, v: f64, prev: Option<f64>) -> Option<f64> {
-        match self.machine.limits(self.axes[i]) {
+        match self.limits[i] {
             None => Some(prev.map_or(v, |p| near_turn(v, p))),
             Some((lo, hi)) => turn_within(v, lo, hi, prev),
+        }
+    }
+
+    /// Rotary `i` at the turn of `v` nearest `prev` ignoring the limits (`v` itself
+    /// without a previous value), and [`Ik::in_limits`] of it.
+    fn turns(&self, i: usize, v: f64, prev: Option<f64>) -> (f64, Option<f64>) {
+        match (self.limits[i], prev) {
+            (None, Some(p)) => {
+                let near = near_turn(v, p);
+                (near, Some(near))
+            }
+            (None, None) => (v, Some(v)),
+            (Some((lo, hi)), Some(p)) => near_turn_and_within(v, lo, hi, p),
+            (Some((lo, hi)), None) => (v, turn_within(v, lo, hi, None)),
         }
     }
 
@@ -308,20 +326,22 @@ impl Ik {
         let mut best: Option<([f64; 2], (f64, f64))> = None;
         let mut nearest: Option<([f64; 2], (f64, f64))> = None;
         for o in sols {
-            let unlimited =
-                [0, 1].map(|i| prev[i].map_or(o.angles[i], |p| near_turn(o.angles[i], p)));
-            let c = self.cost(unlimited, prev);
-            if nearest.is_none_or(|(_, nc)| Self::less(c, nc) == Some(true)) {
-                nearest = Some((unlimited, c));
+            let [(u0, l0), (u1, l1)] = [0, 1].map(|i| self.turns(i, o.angles[i], prev[i]));
+            let unlimited = [u0, u1];
+            let unlimited_cost = self.cost(unlimited, prev);
+            if nearest.is_none_or(|(_, nc)| Self::less(unlimited_cost, nc) == Some(true)) {
+                nearest = Some((unlimited, unlimited_cost));
             }
-            let (Some(a0), Some(a1)) = (
-                self.in_limits(0, o.angles[0], prev[0]),
-                self.in_limits(1, o.angles[1], prev[1]),
-            ) else {
+            let (Some(a0), Some(a1)) = (l0, l1) else {
                 continue;
             };
             let angles = [a0, a1];
-            let c = self.cost(angles, prev);
+            // Inside the limits the turns are usually the same ones.
+            let c = if angles.map(f64::to_bits) == unlimited.map(f64::to_bits) {
+                unlimited_cost
+            } else {
+                self.cost(angles, prev)
+            };
             let better = match best {
                 None => true,
                 Some((b, bc)) => Self::less(c, bc)
