@@ -49,14 +49,18 @@ struct Condition {
 /// [`Machine::inverse_layout`] for [`Machine::inverse_with`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InverseLayout {
-    /// Coordinate index of `w1` (every rotary turns about X, Y or Z).
-    w1: usize,
+    /// Coordinate indices (every rotary turns about X, Y or Z) of `w1` and of the two
+    /// directions across it, in cyclic order.
+    w1: [usize; 3],
     ia: usize,
     sa: f64,
-    /// Coordinate index of `w2`.
-    w2: usize,
+    /// The same for `w2`.
+    w2: [usize; 3],
     ib: usize,
     sb: f64,
+    /// Coordinate index of the direction across both, and the sign of `w1 × w2` along it.
+    third: usize,
+    normal: f64,
     /// The tool axis is `p` (and `q` is Z); otherwise `p` is Z and `q` the tool axis.
     axis_is_p: bool,
 }
@@ -114,21 +118,6 @@ fn angle_about(w: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> Opti
         return None;
     }
     Some(w.dot(&f.cross(&t)).atan2(f.dot(&t)))
-}
-
-/// The `atan2` arguments (y, x) of [`angle_about`] for the coordinate axis `i`, from the
-/// components across it; `None` when either vector lies along the axis, or when y is zero
-/// (its sign, which the general computation may set otherwise, decides ±π there).
-fn coordinate_angle_args(i: usize, from: &[f64; 3], to: &[f64; 3]) -> Option<(f64, f64)> {
-    let (j, k) = ((i + 1) % 3, (i + 2) % 3);
-    let across_from = from[j] * from[j] + from[k] * from[k];
-    let across_to = to[j] * to[j] + to[k] * to[k];
-    if across_from < DEGENERATE || across_to < DEGENERATE {
-        return None;
-    }
-    let y = from[j] * to[k] - from[k] * to[j];
-    let x = from[j] * to[j] + from[k] * to[k];
-    (y != 0.0).then_some((y, x))
 }
 
 /// `y.atan2(x)` for `args = (y, x)`, taken from an earlier result `(y0, x0, angle)` when
@@ -274,6 +263,24 @@ impl Machine {
     /// the rotaries at `angles`.
     pub fn linear(&self, tip: &Point3<f64>, angles: [f64; 2]) -> [f64; 3] {
         let rot = self.rotations(angles);
+        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
+            // The common table-table case written out (ik runs it for every block): the
+            // carried rotary turns the tip, then the base one; no head point to take off
+            // (taking off zeros changes nothing, not even a zero's sign).
+            let (c0, c1) = (
+                Vector3::from(self.rotary[0].pivot),
+                Vector3::from(self.rotary[1].pivot),
+            );
+            let on_base = c1 + rot[1] * (tip.coords - c1);
+            let xyz = c0 + rot[0] * (on_base - c0);
+            return [xyz.x, xyz.y, xyz.z];
+        }
+        self.linear_by_chains(tip, &rot)
+    }
+
+    /// [`Machine::linear`] for any layout, by the table and head chains.
+    fn linear_by_chains(&self, tip: &Point3<f64>, rot: &[Rotation3<f64>; 2]) -> [f64; 3] {
+        let rot = *rot;
         let (table, nt) = self.chain(Mount::Table);
         let (head, nh) = self.chain(Mount::Head);
         let tip_machine = self.chain_point(&table[..nt], &rot, tip.coords);
@@ -284,27 +291,12 @@ impl Machine {
     /// The machine's orientation condition without the tool axis in it, for
     /// [`Machine::inverse_with`] (a pass that solves every block works it out once).
     pub fn inverse_layout(&self) -> InverseLayout {
-        match self.layout() {
+        // (w1's rotary, its sign, w2's rotary, its sign, whether the tool axis is p)
+        let (ia, sa, ib, sb, axis_is_p) = match self.layout() {
             // R1 R2 t = z  ⇔  Rot(u2, φ2) t = Rot(u1, -φ1) z
-            Layout::TableTable => InverseLayout {
-                w1: letter_index(self, 1),
-                ia: 1,
-                sa: 1.0,
-                w2: letter_index(self, 0),
-                ib: 0,
-                sb: -1.0,
-                axis_is_p: true,
-            },
+            Layout::TableTable => (1, 1.0, 0, -1.0, true),
             // t = R1 R2 z  ⇔  Rot(u2, φ2) z = Rot(u1, -φ1) t
-            Layout::HeadHead => InverseLayout {
-                w1: letter_index(self, 1),
-                ia: 1,
-                sa: 1.0,
-                w2: letter_index(self, 0),
-                ib: 0,
-                sb: -1.0,
-                axis_is_p: false,
-            },
+            Layout::HeadHead => (1, 1.0, 0, -1.0, false),
             // Rt t = Rh z
             Layout::HeadTable => {
                 let (ti, hi) = if self.rotary[0].on == Mount::Table {
@@ -312,16 +304,22 @@ impl Machine {
                 } else {
                     (1, 0)
                 };
-                InverseLayout {
-                    w1: letter_index(self, ti),
-                    ia: ti,
-                    sa: 1.0,
-                    w2: letter_index(self, hi),
-                    ib: hi,
-                    sb: 1.0,
-                    axis_is_p: true,
-                }
+                (ti, 1.0, hi, 1.0, true)
             }
+        };
+        let with_across = |i: usize| [i, (i + 1) % 3, (i + 2) % 3];
+        let (i1, i2) = (letter_index(self, ia), letter_index(self, ib));
+        InverseLayout {
+            w1: with_across(i1),
+            ia,
+            sa,
+            w2: with_across(i2),
+            ib,
+            sb,
+            third: 3 - i1 - i2,
+            // e_i × e_(i+1) = e_(i+2); the other order flips the sign.
+            normal: if (i1 + 1) % 3 == i2 { 1.0 } else { -1.0 },
+            axis_is_p,
         }
     }
 
@@ -330,11 +328,11 @@ impl Machine {
         let z = Vector3::z();
         let (p, q) = if l.axis_is_p { (*axis, z) } else { (z, *axis) };
         Condition {
-            w1: Vector3::ith(l.w1, 1.0),
+            w1: Vector3::ith(l.w1[0], 1.0),
             p,
             ia: l.ia,
             sa: l.sa,
-            w2: Vector3::ith(l.w2, 1.0),
+            w2: Vector3::ith(l.w2[0], 1.0),
             q,
             ib: l.ib,
             sb: l.sb,
@@ -363,10 +361,7 @@ impl Machine {
         }
         let z = [0.0, 0.0, 1.0];
         let (p, q) = if layout.axis_is_p { (t, z) } else { (z, t) };
-        let (i1, i2) = (layout.w1, layout.w2);
-        let third = 3 - i1 - i2;
-        // w1 × w2 is ±e_third, + when w1, w2 follow X, Y, Z cyclically.
-        let normal = if (i1 + 1) % 3 == i2 { 1.0 } else { -1.0 };
+        let ([i1, j1, k1], [i2, j2, k2]) = (layout.w1, layout.w2);
         // Perpendicular axes: w1·w2 = 0, so the common vector is x w1 + y w2 ± zc w1×w2
         // with x = w1·p and y = w2·q.
         let x = p[i1];
@@ -379,20 +374,35 @@ impl Machine {
             return out;
         }
         let zc = z2.max(0.0).sqrt();
-        let signs: &[f64] = if zc > 0.0 { &[1.0, -1.0] } else { &[1.0] };
+        // What p, q and the common vector have across each axis is the same for both
+        // solutions (the common vector's w1 part is x, its w2 part y, the rest ±zc).
+        if p[j1] * p[j1] + p[k1] * p[k1] < DEGENERATE
+            || y * y + zc * zc < DEGENERATE
+            || q[j2] * q[j2] + q[k2] * q[k2] < DEGENERATE
+            || x * x + zc * zc < DEGENERATE
+        {
+            return self.inverse_general(axis);
+        }
+        let mut common = [0.0; 3];
+        common[i1] = x;
+        common[i2] = y;
         // The first solution's atan2 arguments and results, (y, x, angle) for α and β.
         let mut first: Option<[(f64, f64, f64); 2]> = None;
-        for &s in signs {
-            let mut common = [0.0; 3];
-            common[i1] = x;
-            common[i2] = y;
-            common[third] = normal * (s * zc);
-            let (Some(alpha), Some(beta)) = (
-                coordinate_angle_args(i1, &p, &common),
-                coordinate_angle_args(i2, &q, &common),
-            ) else {
+        for s in [1.0, -1.0] {
+            common[layout.third] = layout.normal * (s * zc);
+            // angle_about's atan2 arguments: (w·(f×t), f·t) with f and t across w.
+            let alpha = (
+                p[j1] * common[k1] - p[k1] * common[j1],
+                p[j1] * common[j1] + p[k1] * common[k1],
+            );
+            let beta = (
+                q[j2] * common[k2] - q[k2] * common[j2],
+                q[j2] * common[j2] + q[k2] * common[k2],
+            );
+            // With y = 0 the sign of the zero, which may differ, decides ±π.
+            if alpha.0 == 0.0 || beta.0 == 0.0 {
                 return self.inverse_general(axis);
-            };
+            }
             let alpha = (alpha.0, alpha.1, atan2_again(alpha, first.map(|f| f[0])));
             let beta = (beta.0, beta.1, atan2_again(beta, first.map(|f| f[1])));
             first = Some([alpha, beta]);
@@ -403,6 +413,9 @@ impl Machine {
                 angles: [self.joint(0, phys[0]), self.joint(1, phys[1])],
                 free: None,
             });
+            if zc <= 0.0 {
+                break;
+            }
         }
         out
     }
@@ -613,6 +626,26 @@ mod tests {
             }
             prop_assume!(Vector3::from(v).norm() > 1e-6);
             check_coordinate_solution(Vector3::from(v))?;
+        }
+
+        /// The table-table linear positions written out are the chains' to the bit.
+        #[test]
+        fn table_table_linear_is_the_chains(
+            px in -300.0f64..300.0, py in -300.0f64..300.0, pz in -300.0f64..300.0,
+            a in -720.0f64..720.0, c in -720.0f64..720.0, zeroed in 0usize..16,
+        ) {
+            let mut v = [px, py, pz, a];
+            for (i, x) in v.iter_mut().enumerate() {
+                if zeroed & (1 << i) != 0 {
+                    *x = 0.0;
+                }
+            }
+            let tip = Point3::new(v[0], v[1], v[2]);
+            for m in machines().iter().filter(|m| m.layout() == Layout::TableTable) {
+                let angles = [v[3], c];
+                let chains = m.linear_by_chains(&tip, &m.rotations(angles));
+                prop_assert_eq!(m.linear(&tip, angles).map(f64::to_bits), chains.map(f64::to_bits));
+            }
         }
 
         /// `atan2` is odd in y to the bit, which the second solution's β relies on.
