@@ -441,9 +441,10 @@ impl Ik {
         ))
     }
 
-    fn pose_motion(&mut self, mut block: Block, pose: Pose, out: &mut Output<'_>) {
+    /// Turns the pose motion `block` into joints; `false` when it is dropped (an error).
+    fn pose_motion(&mut self, block: &mut Block, pose: Pose, out: &mut Output<'_>) -> bool {
         let BlockKind::Motion(m) = &mut block.kind else {
-            return;
+            return false;
         };
         if let MotionKind::Arc(_) = m.kind {
             out.diag(
@@ -454,7 +455,7 @@ impl Ik {
                 .at_span(block.span)
                 .with_help("cut the arc into straight moves before `ik` (the CL frontend does this for CIRCLE)"),
             );
-            return;
+            return false;
         }
         let cutting = !matches!(m.kind, MotionKind::Rapid);
         let Some(choice) = self.choose(pose.axis, cutting) else {
@@ -479,7 +480,7 @@ impl Ik {
                     "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out",
                 ),
             );
-            return;
+            return false;
         };
         let prev = self.prev_angles();
         if choice.held.is_none()
@@ -586,7 +587,7 @@ impl Ik {
         m.written = written;
         self.prev = target;
         self.last_axis = Some((choice.angles, pose.axis));
-        out.push(block);
+        true
     }
 
     /// The letters of the rotaries that change between `a` and `b`: `A and C`.
@@ -608,12 +609,15 @@ impl Pass for Ik {
         "ik"
     }
 
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+    fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
         match &block.kind {
             BlockKind::Motion(m) => match &m.target {
                 Target::Pose(pose) => {
                     let pose = pose.clone();
-                    self.pose_motion(block, pose, out);
+                    // Borrowed, not moved: a block is a few hundred bytes.
+                    if self.pose_motion(&mut block, pose, out) {
+                        out.push(block);
+                    }
                     return;
                 }
                 Target::Joints(j) => {
