@@ -121,6 +121,26 @@ pub fn turn_within(v: f64, lo: f64, hi: f64, prev: Option<f64>) -> Option<f64> {
     Some(v + 360.0 * want.clamp(kmin, kmax))
 }
 
+/// [`near_turn`] of `v` to `prev` and [`turn_within`] of `v` for `prev` together: the
+/// same two values, with the rounding shared (both want the turn nearest `prev`, and
+/// usually that one is inside the limits).
+///
+/// ```
+/// use ncpost::machine::angle::near_turn_and_within;
+/// assert_eq!(near_turn_and_within(-170.0, -90.0, 270.0, 180.0), (190.0, Some(190.0)));
+/// assert_eq!(near_turn_and_within(100.0, -90.0, 90.0, 80.0), (100.0, None));
+/// ```
+#[inline]
+pub fn near_turn_and_within(v: f64, lo: f64, hi: f64, prev: f64) -> (f64, Option<f64>) {
+    let want = round((prev - v) / 360.0);
+    let near = v + 360.0 * want;
+    // turn_within's usual case, where it takes this same value.
+    if want == 0.0 && v >= lo - LIMIT_SLACK && v <= hi + LIMIT_SLACK {
+        return (near, Some(near));
+    }
+    (near, turn_within(v, lo, hi, Some(prev)))
+}
+
 /// Wraps degrees into (-180, 180].
 ///
 /// ```
@@ -234,6 +254,29 @@ mod tests {
             });
             let got = turn_within(v, lo, hi, prev);
             prop_assert_eq!(got.map(f64::to_bits), expected.map(f64::to_bits), "{:?} {:?}", got, expected);
+        }
+
+        #[test]
+        fn near_turn_and_within_is_both(
+            v in -1000.0f64..1000.0,
+            lo in -400.0f64..100.0,
+            span in 0.0f64..500.0,
+            prev in -2000.0f64..2000.0,
+            edge in 0u8..4,
+        ) {
+            let hi = lo + span;
+            let v = match edge {
+                1 => lo,
+                2 => hi + LIMIT_SLACK,
+                3 => prev,
+                _ => v,
+            };
+            let (near, within) = near_turn_and_within(v, lo, hi, prev);
+            prop_assert_eq!(near.to_bits(), near_turn(v, prev).to_bits());
+            prop_assert_eq!(
+                within.map(f64::to_bits),
+                turn_within(v, lo, hi, Some(prev)).map(f64::to_bits)
+            );
         }
 
         #[test]

@@ -44,14 +44,68 @@ struct Condition {
     sb: f64,
 }
 
+/// The orientation condition `Rot(w1, s_a φ[ia]) p = Rot(w2, s_b φ[ib]) q` of a layout
+/// with the tool axis left out (it is `p` or `q`, the other one is Z), from
+/// [`Machine::inverse_layout`] for [`Machine::inverse_with`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InverseLayout {
+    /// Coordinate indices (every rotary turns about X, Y or Z) of `w1` and of the two
+    /// directions across it, in cyclic order.
+    w1: [usize; 3],
+    ia: usize,
+    sa: f64,
+    /// The same for `w2`.
+    w2: [usize; 3],
+    ib: usize,
+    sb: f64,
+    /// Coordinate index of the direction across both, and the sign of `w1 × w2` along it.
+    third: usize,
+    normal: f64,
+    /// The tool axis is `p` (and `q` is Z); otherwise `p` is Z and `q` the tool axis.
+    axis_is_p: bool,
+}
+
+/// The orientations [`Machine::inverse_with`] found: those of [`Machine::inverse`], in its
+/// order, with [`Machine::singularity_cos`] of the same axis.
+#[derive(Debug, Clone, Copy)]
+pub struct Solutions {
+    found: [Orientation; 2],
+    len: usize,
+    /// [`Machine::singularity_cos`] of the tool axis.
+    pub singularity_cos: f64,
+}
+
+impl Solutions {
+    /// No orientation.
+    const NONE: Solutions = Solutions {
+        found: [Orientation {
+            angles: [0.0; 2],
+            free: None,
+        }; 2],
+        len: 0,
+        singularity_cos: 0.0,
+    };
+
+    /// The orientations, at most two.
+    pub fn orientations(&self) -> &[Orientation] {
+        &self.found[..self.len]
+    }
+
+    fn push(&mut self, o: Orientation) {
+        self.found[self.len] = o;
+        self.len += 1;
+    }
+}
+
 /// Below this, a vector's component across a rotation axis is treated as zero.
 const DEGENERATE: f64 = 1e-12;
 
-fn unit_of(m: &Machine, i: usize) -> Vector3<f64> {
+/// The coordinate index (0 = X, 1 = Y, 2 = Z) of the direction rotary `i` turns about.
+fn letter_index(m: &Machine, i: usize) -> usize {
     match m.rotary[i].axis {
-        super::RotaryLetter::A => Vector3::x(),
-        super::RotaryLetter::B => Vector3::y(),
-        super::RotaryLetter::C => Vector3::z(),
+        super::RotaryLetter::A => 0,
+        super::RotaryLetter::B => 1,
+        super::RotaryLetter::C => 2,
     }
 }
 
@@ -64,6 +118,24 @@ fn angle_about(w: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> Opti
         return None;
     }
     Some(w.dot(&f.cross(&t)).atan2(f.dot(&t)))
+}
+
+/// `y.atan2(x)` for `args = (y, x)`, taken from an earlier result `(y0, x0, angle)` when
+/// the arguments are the same but perhaps for the sign of y (atan2 is odd in y: the
+/// second solution's β often differs only so).
+fn atan2_again(args: (f64, f64), earlier: Option<(f64, f64, f64)>) -> f64 {
+    let (y, x) = args;
+    if let Some((y0, x0, angle)) = earlier
+        && x.to_bits() == x0.to_bits()
+    {
+        if y.to_bits() == y0.to_bits() {
+            return angle;
+        }
+        if y.to_bits() == (-y0).to_bits() {
+            return -angle;
+        }
+    }
+    y.atan2(x)
 }
 
 impl Machine {
@@ -191,6 +263,24 @@ impl Machine {
     /// the rotaries at `angles`.
     pub fn linear(&self, tip: &Point3<f64>, angles: [f64; 2]) -> [f64; 3] {
         let rot = self.rotations(angles);
+        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
+            // The common table-table case written out (ik runs it for every block): the
+            // carried rotary turns the tip, then the base one; no head point to take off
+            // (taking off zeros changes nothing, not even a zero's sign).
+            let (c0, c1) = (
+                Vector3::from(self.rotary[0].pivot),
+                Vector3::from(self.rotary[1].pivot),
+            );
+            let on_base = c1 + rot[1] * (tip.coords - c1);
+            let xyz = c0 + rot[0] * (on_base - c0);
+            return [xyz.x, xyz.y, xyz.z];
+        }
+        self.linear_by_chains(tip, &rot)
+    }
+
+    /// [`Machine::linear`] for any layout, by the table and head chains.
+    fn linear_by_chains(&self, tip: &Point3<f64>, rot: &[Rotation3<f64>; 2]) -> [f64; 3] {
+        let rot = *rot;
         let (table, nt) = self.chain(Mount::Table);
         let (head, nh) = self.chain(Mount::Head);
         let tip_machine = self.chain_point(&table[..nt], &rot, tip.coords);
@@ -198,31 +288,15 @@ impl Machine {
         [xyz.x, xyz.y, xyz.z]
     }
 
-    fn condition(&self, axis: &Vector3<f64>) -> Condition {
-        let z = Vector3::z();
-        match self.layout() {
+    /// The machine's orientation condition without the tool axis in it, for
+    /// [`Machine::inverse_with`] (a pass that solves every block works it out once).
+    pub fn inverse_layout(&self) -> InverseLayout {
+        // (w1's rotary, its sign, w2's rotary, its sign, whether the tool axis is p)
+        let (ia, sa, ib, sb, axis_is_p) = match self.layout() {
             // R1 R2 t = z  ⇔  Rot(u2, φ2) t = Rot(u1, -φ1) z
-            Layout::TableTable => Condition {
-                w1: unit_of(self, 1),
-                p: *axis,
-                ia: 1,
-                sa: 1.0,
-                w2: unit_of(self, 0),
-                q: z,
-                ib: 0,
-                sb: -1.0,
-            },
+            Layout::TableTable => (1, 1.0, 0, -1.0, true),
             // t = R1 R2 z  ⇔  Rot(u2, φ2) z = Rot(u1, -φ1) t
-            Layout::HeadHead => Condition {
-                w1: unit_of(self, 1),
-                p: z,
-                ia: 1,
-                sa: 1.0,
-                w2: unit_of(self, 0),
-                q: *axis,
-                ib: 0,
-                sb: -1.0,
-            },
+            Layout::HeadHead => (1, 1.0, 0, -1.0, false),
             // Rt t = Rh z
             Layout::HeadTable => {
                 let (ti, hi) = if self.rotary[0].on == Mount::Table {
@@ -230,23 +304,134 @@ impl Machine {
                 } else {
                     (1, 0)
                 };
-                Condition {
-                    w1: unit_of(self, ti),
-                    p: *axis,
-                    ia: ti,
-                    sa: 1.0,
-                    w2: unit_of(self, hi),
-                    q: z,
-                    ib: hi,
-                    sb: 1.0,
-                }
+                (ti, 1.0, hi, 1.0, true)
             }
+        };
+        let with_across = |i: usize| [i, (i + 1) % 3, (i + 2) % 3];
+        let (i1, i2) = (letter_index(self, ia), letter_index(self, ib));
+        InverseLayout {
+            w1: with_across(i1),
+            ia,
+            sa,
+            w2: with_across(i2),
+            ib,
+            sb,
+            third: 3 - i1 - i2,
+            // e_i × e_(i+1) = e_(i+2); the other order flips the sign.
+            normal: if (i1 + 1) % 3 == i2 { 1.0 } else { -1.0 },
+            axis_is_p,
+        }
+    }
+
+    fn condition(&self, axis: &Vector3<f64>) -> Condition {
+        let l = self.inverse_layout();
+        let z = Vector3::z();
+        let (p, q) = if l.axis_is_p { (*axis, z) } else { (z, *axis) };
+        Condition {
+            w1: Vector3::ith(l.w1[0], 1.0),
+            p,
+            ia: l.ia,
+            sa: l.sa,
+            w2: Vector3::ith(l.w2[0], 1.0),
+            q,
+            ib: l.ib,
+            sb: l.sb,
         }
     }
 
     /// Every rotary orientation (up to two) that points the tool along `axis` (part frame,
     /// unit); empty when the axis pair cannot reach it. Limits are not applied here.
     pub fn inverse(&self, axis: Unit<Vector3<f64>>) -> SmallVec<[Orientation; 2]> {
+        let found = self.inverse_with(&self.inverse_layout(), axis);
+        SmallVec::from_slice(found.orientations())
+    }
+
+    /// [`Machine::inverse`] with the machine's [`Machine::inverse_layout`] worked out
+    /// beforehand, and the vector algebra written out: every rotary turns about X, Y or Z,
+    /// so a product with a rotation axis is a pick of components. The values are those of
+    /// the general vector solution to the bit: a product with 0 or 1 left out changes at
+    /// most the sign of a zero, and where that sign could show (an `atan2` of zero, a
+    /// degenerate case) the general solution runs instead.
+    pub fn inverse_with(&self, layout: &InverseLayout, axis: Unit<Vector3<f64>>) -> Solutions {
+        let t = [axis.x, axis.y, axis.z];
+        // Bounded components keep every product finite, as the left-out ones were
+        // (0 · ∞ would not be 0).
+        if !t.iter().all(|v| v.abs() <= 2.0) {
+            return self.inverse_general(axis);
+        }
+        let z = [0.0, 0.0, 1.0];
+        let (p, q) = if layout.axis_is_p { (t, z) } else { (z, t) };
+        let ([i1, j1, k1], [i2, j2, k2]) = (layout.w1, layout.w2);
+        // Perpendicular axes: w1·w2 = 0, so the common vector is x w1 + y w2 ± zc w1×w2
+        // with x = w1·p and y = w2·q.
+        let x = p[i1];
+        let y = q[i2];
+        let mut out = Solutions::NONE;
+        out.singularity_cos = x.abs().max(y.abs()).min(1.0);
+        let z2 = 1.0 - x * x - y * y;
+        // Rounding makes an exactly reachable boundary orientation slightly negative.
+        if z2 < -1e-12 {
+            return out;
+        }
+        let zc = z2.max(0.0).sqrt();
+        // What p, q and the common vector have across each axis is the same for both
+        // solutions (the common vector's w1 part is x, its w2 part y, the rest ±zc).
+        if p[j1] * p[j1] + p[k1] * p[k1] < DEGENERATE
+            || y * y + zc * zc < DEGENERATE
+            || q[j2] * q[j2] + q[k2] * q[k2] < DEGENERATE
+            || x * x + zc * zc < DEGENERATE
+        {
+            return self.inverse_general(axis);
+        }
+        let mut common = [0.0; 3];
+        common[i1] = x;
+        common[i2] = y;
+        // The first solution's atan2 arguments and results, (y, x, angle) for α and β.
+        let mut first: Option<[(f64, f64, f64); 2]> = None;
+        for s in [1.0, -1.0] {
+            common[layout.third] = layout.normal * (s * zc);
+            // angle_about's atan2 arguments: (w·(f×t), f·t) with f and t across w.
+            let alpha = (
+                p[j1] * common[k1] - p[k1] * common[j1],
+                p[j1] * common[j1] + p[k1] * common[k1],
+            );
+            let beta = (
+                q[j2] * common[k2] - q[k2] * common[j2],
+                q[j2] * common[j2] + q[k2] * common[k2],
+            );
+            // With y = 0 the sign of the zero, which may differ, decides ±π.
+            if alpha.0 == 0.0 || beta.0 == 0.0 {
+                return self.inverse_general(axis);
+            }
+            let alpha = (alpha.0, alpha.1, atan2_again(alpha, first.map(|f| f[0])));
+            let beta = (beta.0, beta.1, atan2_again(beta, first.map(|f| f[1])));
+            first = Some([alpha, beta]);
+            let mut phys = [0.0; 2];
+            phys[layout.ia] = layout.sa * alpha.2;
+            phys[layout.ib] = layout.sb * beta.2;
+            out.push(Orientation {
+                angles: [self.joint(0, phys[0]), self.joint(1, phys[1])],
+                free: None,
+            });
+            if zc <= 0.0 {
+                break;
+            }
+        }
+        out
+    }
+
+    /// [`Machine::inverse_with`] by vector algebra, for any rotation axes.
+    fn inverse_general(&self, axis: Unit<Vector3<f64>>) -> Solutions {
+        let mut out = Solutions::NONE;
+        for o in self.inverse_vectors(axis) {
+            out.push(o);
+        }
+        out.singularity_cos = self.singularity_cos(axis);
+        out
+    }
+
+    /// The Paden–Kahan solution of [`Machine::inverse`] in vectors.
+    fn inverse_vectors(&self, axis: Unit<Vector3<f64>>) -> SmallVec<[Orientation; 2]> {
         let c = self.condition(&axis);
         let k = c.w1.dot(&c.w2);
         let n = 1.0 - k * k;
@@ -348,6 +533,127 @@ impl Machine {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    /// The built-in machines, each also with calibration offsets (other joint values at
+    /// the kinematic zero) and flipped directions.
+    fn machines() -> Vec<Machine> {
+        let mut out = Vec::new();
+        for name in ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"] {
+            let text = std::fs::read_to_string(format!("passes/{name}.toml")).unwrap();
+            let m = crate::preset::Preset::from_toml(&text)
+                .unwrap()
+                .machine
+                .unwrap();
+            let mut other = m.clone();
+            other.rotary[0].zero_offset = 3.25;
+            other.rotary[1].zero_offset = -17.5;
+            other.rotary[0].direction *= -1.0;
+            out.push(m);
+            out.push(other);
+        }
+        out
+    }
+
+    /// Whether both lists hold the same orientations to the bit.
+    fn same_bits(a: &[Orientation], b: &[Orientation]) -> bool {
+        a.len() == b.len()
+            && a.iter().zip(b).all(|(x, y)| {
+                x.free == y.free
+                    && x.angles[0].to_bits() == y.angles[0].to_bits()
+                    && x.angles[1].to_bits() == y.angles[1].to_bits()
+            })
+    }
+
+    fn check_coordinate_solution(axis: Vector3<f64>) -> Result<(), TestCaseError> {
+        let axis = Unit::new_normalize(axis);
+        for m in machines() {
+            let fast = m.inverse_with(&m.inverse_layout(), axis);
+            let general = m.inverse_vectors(axis);
+            prop_assert!(
+                same_bits(fast.orientations(), &general),
+                "{}: {axis:?}: {:?} vs {general:?}",
+                m.name,
+                fast.orientations()
+            );
+            prop_assert_eq!(
+                fast.singularity_cos.to_bits(),
+                m.singularity_cos(axis).to_bits()
+            );
+        }
+        Ok(())
+    }
+
+    #[test]
+    fn coordinate_solution_is_the_vector_one_on_special_axes() {
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        for axis in [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -1.0],
+            [-0.0, -0.0, 1.0],
+            [1.0, 0.0, 0.0],
+            [-1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+            [0.0, -1.0, -0.0],
+            [0.6, 0.0, 0.8],
+            [-0.6, -0.0, 0.8],
+            [0.0, 0.6, -0.8],
+            [s, s, 0.0],
+            [s, -s, 0.0],
+            [0.0, s, s],
+            [s, 0.0, -s],
+            [1e-9, 0.0, 1.0],
+            [0.0, -1e-9, 1.0],
+        ] {
+            check_coordinate_solution(Vector3::from(axis)).unwrap();
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(3000))]
+
+        /// The written-out solution is the vector one to the bit, zeros and all.
+        #[test]
+        fn coordinate_solution_is_the_vector_one(
+            x in -1.0f64..1.0, y in -1.0f64..1.0, z in -1.0f64..1.0,
+            zeroed in 0usize..8,
+        ) {
+            let mut v = [x, y, z];
+            for (i, c) in v.iter_mut().enumerate() {
+                if zeroed & (1 << i) != 0 && zeroed != 7 {
+                    *c = 0.0;
+                }
+            }
+            prop_assume!(Vector3::from(v).norm() > 1e-6);
+            check_coordinate_solution(Vector3::from(v))?;
+        }
+
+        /// The table-table linear positions written out are the chains' to the bit.
+        #[test]
+        fn table_table_linear_is_the_chains(
+            px in -300.0f64..300.0, py in -300.0f64..300.0, pz in -300.0f64..300.0,
+            a in -720.0f64..720.0, c in -720.0f64..720.0, zeroed in 0usize..16,
+        ) {
+            let mut v = [px, py, pz, a];
+            for (i, x) in v.iter_mut().enumerate() {
+                if zeroed & (1 << i) != 0 {
+                    *x = 0.0;
+                }
+            }
+            let tip = Point3::new(v[0], v[1], v[2]);
+            for m in machines().iter().filter(|m| m.layout() == Layout::TableTable) {
+                let angles = [v[3], c];
+                let chains = m.linear_by_chains(&tip, &m.rotations(angles));
+                prop_assert_eq!(m.linear(&tip, angles).map(f64::to_bits), chains.map(f64::to_bits));
+            }
+        }
+
+        /// `atan2` is odd in y to the bit, which the second solution's β relies on.
+        #[test]
+        fn atan2_is_odd_in_y(y in -10.0f64..10.0, x in -10.0f64..10.0) {
+            prop_assert_eq!((-y).atan2(x).to_bits(), (-(y.atan2(x))).to_bits());
+        }
+    }
 
     #[test]
     fn wrap180_range() {

@@ -27,7 +27,7 @@ mod config_g;
 mod kinematics;
 pub mod polar;
 
-pub use kinematics::{Orientation, ToolPose};
+pub use kinematics::{InverseLayout, Orientation, Solutions, ToolPose};
 
 use serde::{Deserialize, Serialize};
 

@@ -41,8 +41,8 @@ use crate::diag::Diagnostic;
 use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Pose, Target,
 };
-use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within};
-use crate::machine::{Machine, Prefer};
+use crate::machine::angle::{LIMIT_SLACK, near_turn, near_turn_and_within, turn_within};
+use crate::machine::{InverseLayout, Machine, Prefer};
 
 /// What `ik` does where the path must flip to the other solution in a cutting move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -149,6 +149,12 @@ pub struct Ik {
     last_axis: Option<([f64; 2], Unit<Vector3<f64>>)>,
     /// cos(singularity_cone).
     cone_cos: f64,
+    /// The machine's orientation condition, worked out once.
+    layout: InverseLayout,
+    /// The cosine of an axis turn surely below [`WALK_STEP`].
+    within_step_cos: f64,
+    /// The rotaries' limits (`None`: cyclic), listing order.
+    limits: [Option<(f64, f64)>; 2],
 }
 
 impl Ik {
@@ -158,6 +164,8 @@ impl Ik {
         machine.check()?;
         let axes = machine.rotary_axes();
         let cone_cos = options.singularity_cone.to_radians().cos();
+        let layout = machine.inverse_layout();
+        let limits = axes.map(|a| machine.limits(a));
         Ok(Ik {
             machine,
             options,
@@ -166,6 +174,9 @@ impl Ik {
             held: None,
             last_axis: None,
             cone_cos,
+            layout,
+            within_step_cos: (WALK_STEP * (1.0 - 1e-6)).to_radians().cos(),
+            limits,
         })
     }
 
@@ -176,9 +187,23 @@ impl Ik {
     /// Rotary `i` at `v + 360 k` inside its limits, nearest `prev` (nearest `v` without
     /// one); `None` when no turn of `v` is inside.
     fn in_limits(&self, i: usize, v: f64, prev: Option<f64>) -> Option<f64> {
-        match self.machine.limits(self.axes[i]) {
+        match self.limits[i] {
             None => Some(prev.map_or(v, |p| near_turn(v, p))),
             Some((lo, hi)) => turn_within(v, lo, hi, prev),
+        }
+    }
+
+    /// Rotary `i` at the turn of `v` nearest `prev` ignoring the limits (`v` itself
+    /// without a previous value), and [`Ik::in_limits`] of it.
+    fn turns(&self, i: usize, v: f64, prev: Option<f64>) -> (f64, Option<f64>) {
+        match (self.limits[i], prev) {
+            (None, Some(p)) => {
+                let near = near_turn(v, p);
+                (near, Some(near))
+            }
+            (None, None) => (v, Some(v)),
+            (Some((lo, hi)), Some(p)) => near_turn_and_within(v, lo, hi, p),
+            (Some((lo, hi)), None) => (v, turn_within(v, lo, hi, None)),
         }
     }
 
@@ -229,6 +254,12 @@ impl Ik {
             Some((angles, axis)) if angles == [p0, p1] => axis,
             _ => self.machine.forward(&[0.0; 3], [p0, p1]).axis,
         };
+        // Most blocks turn the axis far less than a step: tell that from the cosine (the
+        // one `angle` takes the arccosine of) against a cone a little narrower than a step,
+        // so that acos rounding cannot matter.
+        if from.dot(&axis) / (from.norm() * axis.norm()) >= self.within_step_cos {
+            return prev;
+        }
         let turn = from.angle(&axis).to_degrees();
         if turn <= WALK_STEP || turn > 180.0 - WALK_STEP {
             return prev;
@@ -241,7 +272,7 @@ impl Ik {
                 return prev;
             };
             let mut best: Option<([f64; 2], (f64, f64))> = None;
-            for o in &self.machine.inverse(ax) {
+            for o in self.machine.inverse_with(&self.layout, ax).orientations() {
                 let mut a = [
                     near_turn(o.angles[0], cur[0]),
                     near_turn(o.angles[1], cur[1]),
@@ -270,9 +301,10 @@ impl Ik {
         } else {
             actual
         };
-        let sols = self.machine.inverse(axis);
+        let solutions = self.machine.inverse_with(&self.layout, axis);
+        let sols = solutions.orientations();
         let free = sols.iter().find_map(|o| o.free);
-        if free.is_some() || self.machine.singularity_cos(axis) > self.cone_cos {
+        if free.is_some() || solutions.singularity_cos > self.cone_cos {
             let k = free.unwrap_or_else(|| self.machine.singular_rotary(axis));
             if let Some(pk) = prev[k] {
                 let o = self.machine.hold(axis, k, pk);
@@ -293,21 +325,23 @@ impl Ik {
         // ignoring the limits.
         let mut best: Option<([f64; 2], (f64, f64))> = None;
         let mut nearest: Option<([f64; 2], (f64, f64))> = None;
-        for o in &sols {
-            let unlimited =
-                [0, 1].map(|i| prev[i].map_or(o.angles[i], |p| near_turn(o.angles[i], p)));
-            let c = self.cost(unlimited, prev);
-            if nearest.is_none_or(|(_, nc)| Self::less(c, nc) == Some(true)) {
-                nearest = Some((unlimited, c));
+        for o in sols {
+            let [(u0, l0), (u1, l1)] = [0, 1].map(|i| self.turns(i, o.angles[i], prev[i]));
+            let unlimited = [u0, u1];
+            let unlimited_cost = self.cost(unlimited, prev);
+            if nearest.is_none_or(|(_, nc)| Self::less(unlimited_cost, nc) == Some(true)) {
+                nearest = Some((unlimited, unlimited_cost));
             }
-            let (Some(a0), Some(a1)) = (
-                self.in_limits(0, o.angles[0], prev[0]),
-                self.in_limits(1, o.angles[1], prev[1]),
-            ) else {
+            let (Some(a0), Some(a1)) = (l0, l1) else {
                 continue;
             };
             let angles = [a0, a1];
-            let c = self.cost(angles, prev);
+            // Inside the limits the turns are usually the same ones.
+            let c = if angles.map(f64::to_bits) == unlimited.map(f64::to_bits) {
+                unlimited_cost
+            } else {
+                self.cost(angles, prev)
+            };
             let better = match best {
                 None => true,
                 Some((b, bc)) => Self::less(c, bc)
@@ -407,9 +441,10 @@ impl Ik {
         ))
     }
 
-    fn pose_motion(&mut self, mut block: Block, pose: Pose, out: &mut Output<'_>) {
+    /// Turns the pose motion `block` into joints; `false` when it is dropped (an error).
+    fn pose_motion(&mut self, block: &mut Block, pose: Pose, out: &mut Output<'_>) -> bool {
         let BlockKind::Motion(m) = &mut block.kind else {
-            return;
+            return false;
         };
         if let MotionKind::Arc(_) = m.kind {
             out.diag(
@@ -420,7 +455,7 @@ impl Ik {
                 .at_span(block.span)
                 .with_help("cut the arc into straight moves before `ik` (the CL frontend does this for CIRCLE)"),
             );
-            return;
+            return false;
         }
         let cutting = !matches!(m.kind, MotionKind::Rapid);
         let Some(choice) = self.choose(pose.axis, cutting) else {
@@ -445,7 +480,7 @@ impl Ik {
                     "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out",
                 ),
             );
-            return;
+            return false;
         };
         let prev = self.prev_angles();
         if choice.held.is_none()
@@ -552,7 +587,7 @@ impl Ik {
         m.written = written;
         self.prev = target;
         self.last_axis = Some((choice.angles, pose.axis));
-        out.push(block);
+        true
     }
 
     /// The letters of the rotaries that change between `a` and `b`: `A and C`.
@@ -574,12 +609,15 @@ impl Pass for Ik {
         "ik"
     }
 
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+    fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
         match &block.kind {
             BlockKind::Motion(m) => match &m.target {
                 Target::Pose(pose) => {
                     let pose = pose.clone();
-                    self.pose_motion(block, pose, out);
+                    // Borrowed, not moved: a block is a few hundred bytes.
+                    if self.pose_motion(&mut block, pose, out) {
+                        out.push(block);
+                    }
                     return;
                 }
                 Target::Joints(j) => {
