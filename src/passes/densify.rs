@@ -116,8 +116,10 @@ struct Node {
     joints: Joints,
     xyz: [f64; 3],
     angles: [f64; 2],
-    /// The rotaries' rotations at `angles` (kept: the curvature bound turns by them).
-    rot: [Rotation3<f64>; 2],
+    /// For each rotary (listing order), the distance from its axis of the tool tip's
+    /// point in the curvature bound's chain as it enters that rotary's stage. It depends
+    /// on this end alone, so it is worked out once per node, not once per move end.
+    reach: [f64; 2],
     pose: ToolPose,
 }
 
@@ -234,8 +236,6 @@ fn any_perpendicular(v: &Vector3<f64>) -> Vector3<f64> {
 /// Bounds of a point moving along the joint-linear path through one kinematic stage.
 #[derive(Debug, Clone, Copy)]
 struct Jet {
-    /// The point at `s = 0` and `s = 1`.
-    ends: [Vector3<f64>; 2],
     /// Bound of `|q'(s)|`.
     speed: f64,
     /// Bound of `|q''(s)|`.
@@ -254,8 +254,11 @@ pub struct Densify {
     table: Vec<usize>,
     /// The last emitted position.
     prev: Joints,
-    /// Its five machine axes and pose, when all are known.
-    prev_node: Option<Node>,
+    /// Its five machine axes and pose (when all are known) sit in `nodes[prev_slot]`; a
+    /// move's end is built in the other slot, which then becomes the previous one, so a
+    /// node is never moved.
+    nodes: [Option<Node>; 2],
+    prev_slot: usize,
 }
 
 impl Densify {
@@ -279,7 +282,8 @@ impl Densify {
             head,
             table,
             prev: Joints::default(),
-            prev_node: None,
+            nodes: [None, None],
+            prev_slot: 0,
         })
     }
 
@@ -290,19 +294,60 @@ impl Densify {
             joints.get(Axis::Z)?,
         ];
         let angles = [joints.get(self.axes[0])?, joints.get(self.axes[1])?];
+        Some(self.node_at(*joints, xyz, angles))
+    }
+
+    /// The node of `joints`, whose five machine axes are `xyz` and `angles`.
+    fn node_at(&self, joints: Joints, xyz: [f64; 3], angles: [f64; 2]) -> Node {
         let rot = self.machine.rotations(angles);
-        Some(Node {
-            joints: *joints,
+        Node {
+            joints,
             xyz,
             angles,
-            rot,
+            reach: self.reach(&xyz, &rot),
             pose: self.machine.forward_with(&xyz, &rot),
-        })
+        }
+    }
+
+    /// [`Node::reach`]: the tip's point carried through the chain of
+    /// [`Densify::curvature_bounds`] (head rotaries outermost first, the linear axes, the
+    /// table rotaries undone base first), measured as it enters each rotary's stage.
+    fn reach(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> [f64; 2] {
+        let mut reach = [0.0; 2];
+        let mut q = Vector3::zeros();
+        for &i in self.head.iter().rev() {
+            reach[i] = self.off_axis(i, &q);
+            let c = Vector3::from(self.machine.rotary[i].pivot);
+            q = c + rot[i] * (q - c);
+        }
+        q += Vector3::from(*xyz);
+        if let Some((&last, undone)) = self.table.split_last() {
+            for &i in undone {
+                reach[i] = self.off_axis(i, &q);
+                let c = Vector3::from(self.machine.rotary[i].pivot);
+                q = c + rot[i].inverse() * (q - c);
+            }
+            // Where the point goes after the last stage does not enter the bound.
+            reach[last] = self.off_axis(last, &q);
+        }
+        reach
+    }
+
+    /// The distance of `q` from the axis of rotary `i`.
+    fn off_axis(&self, i: usize, q: &Vector3<f64>) -> f64 {
+        let r = &self.machine.rotary[i];
+        let u = match r.axis {
+            RotaryLetter::A => Vector3::x_axis(),
+            RotaryLetter::B => Vector3::y_axis(),
+            RotaryLetter::C => Vector3::z_axis(),
+        };
+        let d = q - Vector3::from(r.pivot);
+        (d - u.into_inner() * u.dot(&d)).norm()
     }
 
     fn remember(&mut self, joints: Joints) {
         self.prev = joints;
-        self.prev_node = self.node(&joints);
+        self.nodes[self.prev_slot] = self.node(&joints);
     }
 
     fn forget(&mut self, axes: crate::ir::AxisSet) {
@@ -333,32 +378,12 @@ impl Densify {
     }
 
     /// One rotary stage of the bound: `q ↦ c + Rot(θ(s)) (q - c)` (or the inverse turn).
-    fn stage(&self, jet: Jet, i: usize, a: &Node, b: &Node, inverse: bool) -> Jet {
-        let r = &self.machine.rotary[i];
-        let u = match r.axis {
-            RotaryLetter::A => Vector3::x_axis(),
-            RotaryLetter::B => Vector3::y_axis(),
-            RotaryLetter::C => Vector3::z_axis(),
-        };
-        let c = Vector3::from(r.pivot);
+    fn stage(&self, jet: Jet, i: usize, a: &Node, b: &Node) -> Jet {
         let omega = (b.angles[i] - a.angles[i]).abs().to_radians();
-        let off_axis = |q: &Vector3<f64>| {
-            let d = q - c;
-            (d - u.into_inner() * u.dot(&d)).norm()
-        };
         // The distance from the axis changes at most at `speed`, so between the ends it
         // stays below the meeting point of the two slopes.
-        let rho = (off_axis(&jet.ends[0]) + off_axis(&jet.ends[1]) + jet.speed) / 2.0;
-        // The ends turn exactly as in the forward kinematics, by the nodes' rotations.
-        let turn = |rot: &Rotation3<f64>, q: &Vector3<f64>| {
-            if inverse {
-                c + rot.inverse() * (q - c)
-            } else {
-                c + rot * (q - c)
-            }
-        };
+        let rho = (a.reach[i] + b.reach[i] + jet.speed) / 2.0;
         Jet {
-            ends: [turn(&a.rot[i], &jet.ends[0]), turn(&b.rot[i], &jet.ends[1])],
             speed: omega * rho + jet.speed,
             accel: omega * omega * rho + 2.0 * omega * jet.speed + jet.accel,
         }
@@ -369,19 +394,17 @@ impl Densify {
     /// then the linear axes, then the table rotaries undone base first).
     fn curvature_bounds(&self, a: &Node, b: &Node) -> (f64, f64) {
         let mut jet = Jet {
-            ends: [Vector3::zeros(); 2],
             speed: 0.0,
             accel: 0.0,
         };
         for &i in self.head.iter().rev() {
-            jet = self.stage(jet, i, a, b, false);
+            jet = self.stage(jet, i, a, b);
         }
         let x0 = Vector3::from(a.xyz);
         let x1 = Vector3::from(b.xyz);
-        jet.ends = [jet.ends[0] + x0, jet.ends[1] + x1];
         jet.speed += (x1 - x0).norm();
         for &i in &self.table {
-            jet = self.stage(jet, i, a, b, true);
+            jet = self.stage(jet, i, a, b);
         }
         let omega: f64 = (0..2)
             .map(|i| (b.angles[i] - a.angles[i]).abs().to_radians())
@@ -393,9 +416,15 @@ impl Densify {
     /// programmed segment (see the module documentation for why this is a proof).
     fn within(&self, a: &Node, b: &Node) -> bool {
         let tol = self.options.tip_tolerance;
+        let (tip_accel, axis_accel) = self.curvature_bounds(a, b);
+        // The loop's first test, on the whole move (both ends on the programmed path):
+        // most CL steps pass it, and then need neither the segment nor the arc.
+        let whole = 1.0 / 8.0;
+        if tip_accel * whole <= tol && axis_accel * whole <= self.sin_axis_tol {
+            return true;
+        }
         let seg = Segment::new(&a.pose.tip, &b.pose.tip);
         let arc = self.arc(a, b);
-        let (tip_accel, axis_accel) = self.curvature_bounds(a, b);
         // (start, end, tip deviation at both, axis cone distance at both, level)
         let mut stack =
             [(0.0f64, 1.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0u8); CHECK_LEVELS as usize + 2];
@@ -477,14 +506,7 @@ impl Densify {
         joints.set(Axis::Z, xyz[2]);
         joints.set(self.axes[0], angles[0]);
         joints.set(self.axes[1], angles[1]);
-        let rot = self.machine.rotations(angles);
-        Node {
-            joints,
-            xyz,
-            angles,
-            rot,
-            pose: self.machine.forward_with(&xyz, &rot),
-        }
+        self.node_at(joints, xyz, angles)
     }
 
     /// Emits the pieces from `a` to `b` (the last one only when `last` is false: the
@@ -550,14 +572,7 @@ impl Densify {
             joints.set(Axis::Z, xyz[2]);
             joints.set(self.axes[0], angles[0]);
             joints.set(self.axes[1], angles[1]);
-            let rot = self.machine.rotations(angles);
-            return Some(Node {
-                joints,
-                xyz,
-                angles,
-                rot,
-                pose: self.machine.forward_with(&xyz, &rot),
-            });
+            return Some(self.node_at(joints, xyz, angles));
         }
         None
     }
@@ -583,10 +598,11 @@ impl Pass for Densify {
                     MotionKind::Arc(_) => false,
                 } && !m.machine_frame;
                 let machine_frame = m.machine_frame.then_some(m.written);
-                let end_node = self.node(&end);
-                // The nodes are borrowed, not copied: each is over 300 bytes.
+                let end_slot = 1 - self.prev_slot;
+                self.nodes[end_slot] = self.node(&end);
+                // The nodes are borrowed, not copied: each is about 200 bytes.
                 if checked
-                    && let (Some(a), Some(b)) = (&self.prev_node, &end_node)
+                    && let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot])
                     && !self.within(a, b)
                 {
                     let mut hit_limit = false;
@@ -616,7 +632,7 @@ impl Pass for Densify {
                     }
                 }
                 self.prev = end;
-                self.prev_node = end_node;
+                self.prev_slot = end_slot;
                 if let Some(written) = machine_frame {
                     self.forget(written);
                 }
