@@ -38,7 +38,9 @@
 //! machine axes known are checked; commands and lines that clobber axes make the next
 //! move start from an unknown position.
 
-use nalgebra::{Point3, Rotation3, Unit, Vector3};
+use std::cell::OnceCell;
+
+use nalgebra::{Point3, Unit, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
@@ -111,7 +113,7 @@ const SINGULAR_DEG: f64 = 1e-6;
 const CHECK_LEVELS: u8 = 20;
 
 /// A joint position with its five machine axes and tool pose.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct Node {
     joints: Joints,
     xyz: [f64; 3],
@@ -120,7 +122,9 @@ struct Node {
     /// point in the curvature bound's chain as it enters that rotary's stage. It depends
     /// on this end alone, so it is worked out once per node, not once per move end.
     reach: [f64; 2],
-    pose: ToolPose,
+    /// Worked out on first use ([`Densify::pose`]): a move that passes the whole-move
+    /// test never needs its ends' poses.
+    pose: OnceCell<ToolPose>,
 }
 
 /// The programmed straight line of the tool tip.
@@ -299,20 +303,32 @@ impl Densify {
 
     /// The node of `joints`, whose five machine axes are `xyz` and `angles`.
     fn node_at(&self, joints: Joints, xyz: [f64; 3], angles: [f64; 2]) -> Node {
-        let rot = self.machine.rotations(angles);
         Node {
             joints,
             xyz,
             angles,
-            reach: self.reach(&xyz, &rot),
-            pose: self.machine.forward_with(&xyz, &rot),
+            reach: self.reach(&xyz, angles),
+            pose: OnceCell::new(),
         }
+    }
+
+    /// The tool pose of `node`.
+    fn pose<'n>(&self, node: &'n Node) -> &'n ToolPose {
+        node.pose
+            .get_or_init(|| self.machine.forward(&node.xyz, node.angles))
     }
 
     /// [`Node::reach`]: the tip's point carried through the chain of
     /// [`Densify::curvature_bounds`] (head rotaries outermost first, the linear axes, the
     /// table rotaries undone base first), measured as it enters each rotary's stage.
-    fn reach(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> [f64; 2] {
+    fn reach(&self, xyz: &[f64; 3], angles: [f64; 2]) -> [f64; 2] {
+        // The last table stage's rotation is never used: that rotary is asked for at its
+        // zero, where the sine and cosine are cheap. The other rotation is the real one.
+        let mut asked = angles;
+        if let Some(&last) = self.table.last() {
+            asked[last] = self.machine.rotary[last].zero_offset;
+        }
+        let rot = self.machine.rotations(asked);
         let mut reach = [0.0; 2];
         let mut q = Vector3::zeros();
         for &i in self.head.iter().rev() {
@@ -372,7 +388,7 @@ impl Densify {
     }
 
     fn arc(&self, a: &Node, b: &Node) -> AxisArc {
-        AxisArc::new(&a.pose.axis, &b.pose.axis, || {
+        AxisArc::new(&self.pose(a).axis, &self.pose(b).axis, || {
             self.path_pose(a, b, 0.5).axis.into_inner()
         })
     }
@@ -423,7 +439,7 @@ impl Densify {
         if tip_accel * whole <= tol && axis_accel * whole <= self.sin_axis_tol {
             return true;
         }
-        let seg = Segment::new(&a.pose.tip, &b.pose.tip);
+        let seg = Segment::new(&self.pose(a).tip, &self.pose(b).tip);
         let arc = self.arc(a, b);
         // (start, end, tip deviation at both, axis cone distance at both, level)
         let mut stack =
@@ -486,7 +502,8 @@ impl Densify {
 
     /// The position at the programmed midpoint between `a` and `b`.
     fn midpoint(&self, a: &Node, b: &Node) -> Node {
-        let tip = a.pose.tip + (b.pose.tip - a.pose.tip) * 0.5;
+        let (ta, tb) = (self.pose(a).tip, self.pose(b).tip);
+        let tip = ta + (tb - ta) * 0.5;
         let axis = self.arc(a, b).slerp(0.5);
         let target = [
             0.5 * (a.angles[0] + b.angles[0]),
@@ -546,13 +563,14 @@ impl Densify {
     /// first (or last), on the spot: the node at the singular end's pose with the free
     /// rotary at the other end's value.
     fn turn_on_the_spot(&self, a: &Node, b: &Node) -> Option<Node> {
-        let same_pose = (a.pose.tip - b.pose.tip).norm() <= 1e-9
-            && a.pose.axis.dot(&b.pose.axis) >= 1.0 - 1e-15;
+        let (pa, pb) = (self.pose(a), self.pose(b));
+        let same_pose = (pa.tip - pb.tip).norm() <= 1e-9 && pa.axis.dot(&pb.axis) >= 1.0 - 1e-15;
         if same_pose {
             return None;
         }
         for (end, other) in [(a, b), (b, a)] {
-            let axis = end.pose.axis;
+            let end_pose = self.pose(end);
+            let axis = end_pose.axis;
             if self.machine.singularity_distance(axis) >= SINGULAR_DEG {
                 continue;
             }
@@ -565,7 +583,7 @@ impl Densify {
             let mut angles = end.angles;
             angles[k] = want;
             angles[1 - k] = near_turn(held[1 - k], end.angles[1 - k]);
-            let xyz = self.machine.linear(&end.pose.tip, angles);
+            let xyz = self.machine.linear(&end_pose.tip, angles);
             let mut joints = end.joints;
             joints.set(Axis::X, xyz[0]);
             joints.set(Axis::Y, xyz[1]);
