@@ -256,6 +256,8 @@ pub struct Densify {
     /// Indices of the head rotaries, base outward, and of the table rotaries.
     head: Vec<usize>,
     table: Vec<usize>,
+    /// Each rotary's axis direction and pivot.
+    rotary_lines: [(Vector3<f64>, Vector3<f64>); 2],
     /// The last emitted position.
     prev: Joints,
     /// Its five machine axes and pose (when all are known) sit in `nodes[prev_slot]`; a
@@ -277,7 +279,17 @@ impl Densify {
         let table = (0..2)
             .filter(|&i| machine.rotary[i].on == Mount::Table)
             .collect();
+        let rotary_lines = [0, 1].map(|i| {
+            let r = &machine.rotary[i];
+            let u = match r.axis {
+                RotaryLetter::A => Vector3::x(),
+                RotaryLetter::B => Vector3::y(),
+                RotaryLetter::C => Vector3::z(),
+            };
+            (u, Vector3::from(r.pivot))
+        });
         Ok(Densify {
+            rotary_lines,
             axes: machine.rotary_axes(),
             machine,
             axis_tol,
@@ -333,14 +345,14 @@ impl Densify {
         let mut q = Vector3::zeros();
         for &i in self.head.iter().rev() {
             reach[i] = self.off_axis(i, &q);
-            let c = Vector3::from(self.machine.rotary[i].pivot);
+            let c = self.rotary_lines[i].1;
             q = c + rot[i] * (q - c);
         }
         q += Vector3::from(*xyz);
         if let Some((&last, undone)) = self.table.split_last() {
             for &i in undone {
                 reach[i] = self.off_axis(i, &q);
-                let c = Vector3::from(self.machine.rotary[i].pivot);
+                let c = self.rotary_lines[i].1;
                 q = c + rot[i].inverse() * (q - c);
             }
             // Where the point goes after the last stage does not enter the bound.
@@ -351,14 +363,9 @@ impl Densify {
 
     /// The distance of `q` from the axis of rotary `i`.
     fn off_axis(&self, i: usize, q: &Vector3<f64>) -> f64 {
-        let r = &self.machine.rotary[i];
-        let u = match r.axis {
-            RotaryLetter::A => Vector3::x_axis(),
-            RotaryLetter::B => Vector3::y_axis(),
-            RotaryLetter::C => Vector3::z_axis(),
-        };
-        let d = q - Vector3::from(r.pivot);
-        (d - u.into_inner() * u.dot(&d)).norm()
+        let (u, c) = &self.rotary_lines[i];
+        let d = q - c;
+        (d - u * u.dot(&d)).norm()
     }
 
     fn remember(&mut self, joints: Joints) {
