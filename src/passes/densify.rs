@@ -38,7 +38,9 @@
 //! machine axes known are checked; commands and lines that clobber axes make the next
 //! move start from an unknown position.
 
-use nalgebra::{Point3, Rotation3, Unit, Vector3};
+use std::cell::OnceCell;
+
+use nalgebra::{Point3, Unit, Vector3};
 use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
@@ -111,14 +113,18 @@ const SINGULAR_DEG: f64 = 1e-6;
 const CHECK_LEVELS: u8 = 20;
 
 /// A joint position with its five machine axes and tool pose.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 struct Node {
     joints: Joints,
     xyz: [f64; 3],
     angles: [f64; 2],
-    /// The rotaries' rotations at `angles` (kept: the curvature bound turns by them).
-    rot: [Rotation3<f64>; 2],
-    pose: ToolPose,
+    /// For each rotary (listing order), the distance from its axis of the tool tip's
+    /// point in the curvature bound's chain as it enters that rotary's stage. It depends
+    /// on this end alone, so it is worked out once per node, not once per move end.
+    reach: [f64; 2],
+    /// Worked out on first use ([`Densify::pose`]): a move that passes the whole-move
+    /// test never needs its ends' poses.
+    pose: OnceCell<ToolPose>,
 }
 
 /// The programmed straight line of the tool tip.
@@ -234,8 +240,6 @@ fn any_perpendicular(v: &Vector3<f64>) -> Vector3<f64> {
 /// Bounds of a point moving along the joint-linear path through one kinematic stage.
 #[derive(Debug, Clone, Copy)]
 struct Jet {
-    /// The point at `s = 0` and `s = 1`.
-    ends: [Vector3<f64>; 2],
     /// Bound of `|q'(s)|`.
     speed: f64,
     /// Bound of `|q''(s)|`.
@@ -252,10 +256,15 @@ pub struct Densify {
     /// Indices of the head rotaries, base outward, and of the table rotaries.
     head: Vec<usize>,
     table: Vec<usize>,
+    /// Each rotary's axis direction and pivot.
+    rotary_lines: [(Vector3<f64>, Vector3<f64>); 2],
     /// The last emitted position.
     prev: Joints,
-    /// Its five machine axes and pose, when all are known.
-    prev_node: Option<Node>,
+    /// Its five machine axes and pose (when all are known) sit in `nodes[prev_slot]`; a
+    /// move's end is built in the other slot, which then becomes the previous one, so a
+    /// node is never moved.
+    nodes: [Option<Node>; 2],
+    prev_slot: usize,
 }
 
 impl Densify {
@@ -270,7 +279,17 @@ impl Densify {
         let table = (0..2)
             .filter(|&i| machine.rotary[i].on == Mount::Table)
             .collect();
+        let rotary_lines = [0, 1].map(|i| {
+            let r = &machine.rotary[i];
+            let u = match r.axis {
+                RotaryLetter::A => Vector3::x(),
+                RotaryLetter::B => Vector3::y(),
+                RotaryLetter::C => Vector3::z(),
+            };
+            (u, Vector3::from(r.pivot))
+        });
         Ok(Densify {
+            rotary_lines,
             axes: machine.rotary_axes(),
             machine,
             axis_tol,
@@ -279,7 +298,8 @@ impl Densify {
             head,
             table,
             prev: Joints::default(),
-            prev_node: None,
+            nodes: [None, None],
+            prev_slot: 0,
         })
     }
 
@@ -290,19 +310,67 @@ impl Densify {
             joints.get(Axis::Z)?,
         ];
         let angles = [joints.get(self.axes[0])?, joints.get(self.axes[1])?];
-        let rot = self.machine.rotations(angles);
-        Some(Node {
-            joints: *joints,
+        Some(self.node_at(*joints, xyz, angles))
+    }
+
+    /// The node of `joints`, whose five machine axes are `xyz` and `angles`.
+    fn node_at(&self, joints: Joints, xyz: [f64; 3], angles: [f64; 2]) -> Node {
+        Node {
+            joints,
             xyz,
             angles,
-            rot,
-            pose: self.machine.forward_with(&xyz, &rot),
-        })
+            reach: self.reach(&xyz, angles),
+            pose: OnceCell::new(),
+        }
+    }
+
+    /// The tool pose of `node`.
+    fn pose<'n>(&self, node: &'n Node) -> &'n ToolPose {
+        node.pose
+            .get_or_init(|| self.machine.forward(&node.xyz, node.angles))
+    }
+
+    /// [`Node::reach`]: the tip's point carried through the chain of
+    /// [`Densify::curvature_bounds`] (head rotaries outermost first, the linear axes, the
+    /// table rotaries undone base first), measured as it enters each rotary's stage.
+    fn reach(&self, xyz: &[f64; 3], angles: [f64; 2]) -> [f64; 2] {
+        // The last table stage's rotation is never used: that rotary is asked for at its
+        // zero, where the sine and cosine are cheap. The other rotation is the real one.
+        let mut asked = angles;
+        if let Some(&last) = self.table.last() {
+            asked[last] = self.machine.rotary[last].zero_offset;
+        }
+        let rot = self.machine.rotations(asked);
+        let mut reach = [0.0; 2];
+        let mut q = Vector3::zeros();
+        for &i in self.head.iter().rev() {
+            reach[i] = self.off_axis(i, &q);
+            let c = self.rotary_lines[i].1;
+            q = c + rot[i] * (q - c);
+        }
+        q += Vector3::from(*xyz);
+        if let Some((&last, undone)) = self.table.split_last() {
+            for &i in undone {
+                reach[i] = self.off_axis(i, &q);
+                let c = self.rotary_lines[i].1;
+                q = c + rot[i].inverse() * (q - c);
+            }
+            // Where the point goes after the last stage does not enter the bound.
+            reach[last] = self.off_axis(last, &q);
+        }
+        reach
+    }
+
+    /// The distance of `q` from the axis of rotary `i`.
+    fn off_axis(&self, i: usize, q: &Vector3<f64>) -> f64 {
+        let (u, c) = &self.rotary_lines[i];
+        let d = q - c;
+        (d - u * u.dot(&d)).norm()
     }
 
     fn remember(&mut self, joints: Joints) {
         self.prev = joints;
-        self.prev_node = self.node(&joints);
+        self.nodes[self.prev_slot] = self.node(&joints);
     }
 
     fn forget(&mut self, axes: crate::ir::AxisSet) {
@@ -327,38 +395,18 @@ impl Densify {
     }
 
     fn arc(&self, a: &Node, b: &Node) -> AxisArc {
-        AxisArc::new(&a.pose.axis, &b.pose.axis, || {
+        AxisArc::new(&self.pose(a).axis, &self.pose(b).axis, || {
             self.path_pose(a, b, 0.5).axis.into_inner()
         })
     }
 
     /// One rotary stage of the bound: `q ↦ c + Rot(θ(s)) (q - c)` (or the inverse turn).
-    fn stage(&self, jet: Jet, i: usize, a: &Node, b: &Node, inverse: bool) -> Jet {
-        let r = &self.machine.rotary[i];
-        let u = match r.axis {
-            RotaryLetter::A => Vector3::x_axis(),
-            RotaryLetter::B => Vector3::y_axis(),
-            RotaryLetter::C => Vector3::z_axis(),
-        };
-        let c = Vector3::from(r.pivot);
+    fn stage(&self, jet: Jet, i: usize, a: &Node, b: &Node) -> Jet {
         let omega = (b.angles[i] - a.angles[i]).abs().to_radians();
-        let off_axis = |q: &Vector3<f64>| {
-            let d = q - c;
-            (d - u.into_inner() * u.dot(&d)).norm()
-        };
         // The distance from the axis changes at most at `speed`, so between the ends it
         // stays below the meeting point of the two slopes.
-        let rho = (off_axis(&jet.ends[0]) + off_axis(&jet.ends[1]) + jet.speed) / 2.0;
-        // The ends turn exactly as in the forward kinematics, by the nodes' rotations.
-        let turn = |rot: &Rotation3<f64>, q: &Vector3<f64>| {
-            if inverse {
-                c + rot.inverse() * (q - c)
-            } else {
-                c + rot * (q - c)
-            }
-        };
+        let rho = (a.reach[i] + b.reach[i] + jet.speed) / 2.0;
         Jet {
-            ends: [turn(&a.rot[i], &jet.ends[0]), turn(&b.rot[i], &jet.ends[1])],
             speed: omega * rho + jet.speed,
             accel: omega * omega * rho + 2.0 * omega * jet.speed + jet.accel,
         }
@@ -369,19 +417,17 @@ impl Densify {
     /// then the linear axes, then the table rotaries undone base first).
     fn curvature_bounds(&self, a: &Node, b: &Node) -> (f64, f64) {
         let mut jet = Jet {
-            ends: [Vector3::zeros(); 2],
             speed: 0.0,
             accel: 0.0,
         };
         for &i in self.head.iter().rev() {
-            jet = self.stage(jet, i, a, b, false);
+            jet = self.stage(jet, i, a, b);
         }
         let x0 = Vector3::from(a.xyz);
         let x1 = Vector3::from(b.xyz);
-        jet.ends = [jet.ends[0] + x0, jet.ends[1] + x1];
         jet.speed += (x1 - x0).norm();
         for &i in &self.table {
-            jet = self.stage(jet, i, a, b, true);
+            jet = self.stage(jet, i, a, b);
         }
         let omega: f64 = (0..2)
             .map(|i| (b.angles[i] - a.angles[i]).abs().to_radians())
@@ -393,9 +439,15 @@ impl Densify {
     /// programmed segment (see the module documentation for why this is a proof).
     fn within(&self, a: &Node, b: &Node) -> bool {
         let tol = self.options.tip_tolerance;
-        let seg = Segment::new(&a.pose.tip, &b.pose.tip);
-        let arc = self.arc(a, b);
         let (tip_accel, axis_accel) = self.curvature_bounds(a, b);
+        // The loop's first test, on the whole move (both ends on the programmed path):
+        // most CL steps pass it, and then need neither the segment nor the arc.
+        let whole = 1.0 / 8.0;
+        if tip_accel * whole <= tol && axis_accel * whole <= self.sin_axis_tol {
+            return true;
+        }
+        let seg = Segment::new(&self.pose(a).tip, &self.pose(b).tip);
+        let arc = self.arc(a, b);
         // (start, end, tip deviation at both, axis cone distance at both, level)
         let mut stack =
             [(0.0f64, 1.0f64, 0.0f64, 0.0f64, 0.0f64, 0.0f64, 0u8); CHECK_LEVELS as usize + 2];
@@ -457,7 +509,8 @@ impl Densify {
 
     /// The position at the programmed midpoint between `a` and `b`.
     fn midpoint(&self, a: &Node, b: &Node) -> Node {
-        let tip = a.pose.tip + (b.pose.tip - a.pose.tip) * 0.5;
+        let (ta, tb) = (self.pose(a).tip, self.pose(b).tip);
+        let tip = ta + (tb - ta) * 0.5;
         let axis = self.arc(a, b).slerp(0.5);
         let target = [
             0.5 * (a.angles[0] + b.angles[0]),
@@ -477,14 +530,7 @@ impl Densify {
         joints.set(Axis::Z, xyz[2]);
         joints.set(self.axes[0], angles[0]);
         joints.set(self.axes[1], angles[1]);
-        let rot = self.machine.rotations(angles);
-        Node {
-            joints,
-            xyz,
-            angles,
-            rot,
-            pose: self.machine.forward_with(&xyz, &rot),
-        }
+        self.node_at(joints, xyz, angles)
     }
 
     /// Emits the pieces from `a` to `b` (the last one only when `last` is false: the
@@ -524,13 +570,14 @@ impl Densify {
     /// first (or last), on the spot: the node at the singular end's pose with the free
     /// rotary at the other end's value.
     fn turn_on_the_spot(&self, a: &Node, b: &Node) -> Option<Node> {
-        let same_pose = (a.pose.tip - b.pose.tip).norm() <= 1e-9
-            && a.pose.axis.dot(&b.pose.axis) >= 1.0 - 1e-15;
+        let (pa, pb) = (self.pose(a), self.pose(b));
+        let same_pose = (pa.tip - pb.tip).norm() <= 1e-9 && pa.axis.dot(&pb.axis) >= 1.0 - 1e-15;
         if same_pose {
             return None;
         }
         for (end, other) in [(a, b), (b, a)] {
-            let axis = end.pose.axis;
+            let end_pose = self.pose(end);
+            let axis = end_pose.axis;
             if self.machine.singularity_distance(axis) >= SINGULAR_DEG {
                 continue;
             }
@@ -543,21 +590,14 @@ impl Densify {
             let mut angles = end.angles;
             angles[k] = want;
             angles[1 - k] = near_turn(held[1 - k], end.angles[1 - k]);
-            let xyz = self.machine.linear(&end.pose.tip, angles);
+            let xyz = self.machine.linear(&end_pose.tip, angles);
             let mut joints = end.joints;
             joints.set(Axis::X, xyz[0]);
             joints.set(Axis::Y, xyz[1]);
             joints.set(Axis::Z, xyz[2]);
             joints.set(self.axes[0], angles[0]);
             joints.set(self.axes[1], angles[1]);
-            let rot = self.machine.rotations(angles);
-            return Some(Node {
-                joints,
-                xyz,
-                angles,
-                rot,
-                pose: self.machine.forward_with(&xyz, &rot),
-            });
+            return Some(self.node_at(joints, xyz, angles));
         }
         None
     }
@@ -583,10 +623,11 @@ impl Pass for Densify {
                     MotionKind::Arc(_) => false,
                 } && !m.machine_frame;
                 let machine_frame = m.machine_frame.then_some(m.written);
-                let end_node = self.node(&end);
-                // The nodes are borrowed, not copied: each is over 300 bytes.
+                let end_slot = 1 - self.prev_slot;
+                self.nodes[end_slot] = self.node(&end);
+                // The nodes are borrowed, not copied: each is about 200 bytes.
                 if checked
-                    && let (Some(a), Some(b)) = (&self.prev_node, &end_node)
+                    && let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot])
                     && !self.within(a, b)
                 {
                     let mut hit_limit = false;
@@ -616,7 +657,7 @@ impl Pass for Densify {
                     }
                 }
                 self.prev = end;
-                self.prev_node = end_node;
+                self.prev_slot = end_slot;
                 if let Some(written) = machine_frame {
                     self.forget(written);
                 }

@@ -112,6 +112,13 @@ pub struct Feed {
     reorient_feed: f64,
     decimals: Option<Decimals>,
     axes: [Axis; 5],
+    /// The printed decimals of each of `axes`, when the backend prints at all.
+    places: Option<[u8; 5]>,
+    /// Each of `axes`' `max_feed` and the speed above which it warns (a little over it,
+    /// so that a move at exactly the limit does not).
+    max_feed: [Option<(f64, f64)>; 5],
+    /// `10^decimals.feed`: a printed F is a whole number of `1 / feed_scale`.
+    feed_scale: f64,
     prev: Joints,
     /// `prev` as read, when already computed under the offsets in force.
     prev_read: Option<Read>,
@@ -132,12 +139,20 @@ impl Feed {
             return Err("reorient_feed must be a positive number of degrees per minute".into());
         }
         let [r0, r1] = machine.rotary_axes();
+        let axes = [Axis::X, Axis::Y, Axis::Z, r0, r1];
+        let max_feed = axes.map(|a| {
+            let max = machine.controller.max_feed.get(a)?;
+            Some((max, max * (1.0 + 1e-9)))
+        });
         Ok(Feed {
             rule: options.mode.unwrap_or(machine.controller.feed_rule),
             machine,
             reorient_feed: options.reorient_feed,
             decimals: context.decimals,
-            axes: [Axis::X, Axis::Y, Axis::Z, r0, r1],
+            places: context.decimals.map(|d| axes.map(|a| d.axis(a))),
+            max_feed,
+            feed_scale: context.decimals.map_or(1.0, |d| 10f64.powi(d.feed as i32)),
+            axes,
             prev: Joints::default(),
             prev_read: None,
             offsets: [0.0; AXIS_COUNT],
@@ -158,19 +173,23 @@ impl Feed {
         for (k, &a) in self.axes.iter().enumerate() {
             let v = j.get(a)?;
             let off = self.offsets[a.index()];
-            printed[k] = match self.decimals {
-                Some(d) => number::printed(v + off, d.axis(a))?,
+            printed[k] = match self.places {
+                Some(places) => number::printed(v + off, places[k])?,
                 None => v + off,
             };
             ir[k] = printed[k] - off;
             exact[k] = v;
         }
-        let tip = |v: [f64; 5]| self.machine.forward(&[v[0], v[1], v[2]], [v[3], v[4]]).tip;
         Some(Read {
             printed,
-            tip: tip(ir),
+            tip: self.tip(&ir),
             exact,
         })
+    }
+
+    /// The tool tip of the five axes `v` (in the order of `axes`).
+    fn tip(&self, v: &[f64; 5]) -> Point3<f64> {
+        self.machine.forward(&[v[0], v[1], v[2]], [v[3], v[4]]).tip
     }
 
     /// The new feed of a linear move from `prev` to `end` at programmed tip speed `rate`.
@@ -188,8 +207,10 @@ impl Feed {
         };
         let delta: [f64; 5] = std::array::from_fn(|k| b.printed[k] - a.printed[k]);
         let dxyz = (delta[0] * delta[0] + delta[1] * delta[1] + delta[2] * delta[2]).sqrt();
-        let drot = delta[3].hypot(delta[4]);
-        if dxyz == 0.0 && drot == 0.0 {
+        // Only a move without XYZ travel, a reorientation or the Euclidean rule needs it.
+        let drot = || delta[3].hypot(delta[4]);
+        // `hypot` is zero exactly when both rotary deltas are.
+        if dxyz == 0.0 && delta[3] == 0.0 && delta[4] == 0.0 {
             // The controller skips a move that goes nowhere; any valid F will do.
             let f = self.last_rate.unwrap_or(rate);
             return (mode, f);
@@ -200,22 +221,21 @@ impl Feed {
         let exact = if length > 0.01 {
             length
         } else {
-            let tip = |v: &[f64; 5]| self.machine.forward(&[v[0], v[1], v[2]], [v[3], v[4]]).tip;
-            (tip(&b.exact) - tip(&a.exact)).norm()
+            (self.tip(&b.exact) - self.tip(&a.exact)).norm()
         };
         let minutes = if exact.min(length) <= ZERO_TIP {
-            drot / self.reorient_feed
+            drot() / self.reorient_feed
         } else {
             length / rate
         };
         // Rounding can leave a reorientation without rotary travel: the move is then a
         // few units of XYZ correction, run at the programmed speed.
         let minutes = if minutes > 0.0 { minutes } else { dxyz / rate };
-        let nist = if dxyz > 0.0 { dxyz } else { drot };
+        let nist = if dxyz > 0.0 { dxyz } else { drot() };
         let mut f = match self.rule {
             FeedRule::Nist => nist / minutes,
             FeedRule::InverseTime => 1.0 / minutes,
-            FeedRule::Euclidean => dxyz.hypot(drot) / minutes,
+            FeedRule::Euclidean => dxyz.hypot(drot()) / minutes,
         };
         let speed = match self.rule {
             FeedRule::Euclidean => f,
@@ -235,11 +255,11 @@ impl Feed {
             });
         }
         for (k, &axis) in self.axes.iter().enumerate() {
-            let Some(max) = self.machine.controller.max_feed.get(axis) else {
+            let Some((max, limit)) = self.max_feed[k] else {
                 continue;
             };
             let v = delta[k].abs() / minutes;
-            if v > max * (1.0 + 1e-9) {
+            if v > limit {
                 self.max_speed.hit(out, || {
                     Diagnostic::warning(
                         "feed::max-speed",
@@ -254,7 +274,7 @@ impl Feed {
             }
         }
         if let Some(d) = self.decimals {
-            let scale = 10f64.powi(d.feed as i32);
+            let scale = self.feed_scale;
             if let Some(units) = to_units(f, d.feed) {
                 let printed = if units == 0 {
                     1.0 / scale
