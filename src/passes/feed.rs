@@ -84,9 +84,9 @@ struct Counted {
 }
 
 impl Counted {
-    fn hit(&mut self, out: &mut Output<'_>, make: impl FnOnce() -> Diagnostic) {
+    fn hit(&mut self, diags: &mut Vec<Diagnostic>, make: impl FnOnce() -> Diagnostic) {
         if self.count == 0 {
-            out.diag(make());
+            diags.push(make());
         }
         self.count += 1;
     }
@@ -199,7 +199,7 @@ impl Feed {
         a: &Read,
         b: &Read,
         rate: f64,
-        out: &mut Output<'_>,
+        diags: &mut Vec<Diagnostic>,
     ) -> (FeedMode, f64) {
         let mode = match self.rule {
             FeedRule::InverseTime => FeedMode::InverseTime,
@@ -243,7 +243,7 @@ impl Feed {
         };
         let min = self.machine.controller.min_speed;
         if speed < min {
-            self.min_speed.hit(out, || {
+            self.min_speed.hit(diags, || {
                 Diagnostic::warning(
                     "feed::min-speed",
                     format!(
@@ -260,7 +260,7 @@ impl Feed {
             };
             let v = delta[k].abs() / minutes;
             if v > limit {
-                self.max_speed.hit(out, || {
+                self.max_speed.hit(diags, || {
                     Diagnostic::warning(
                         "feed::max-speed",
                         format!(
@@ -284,7 +284,7 @@ impl Feed {
                 let error = (printed - f).abs() / f;
                 if error > FEED_PRECISION {
                     let wanted = f;
-                    self.precision.hit(out, || {
+                    self.precision.hit(diags, || {
                         Diagnostic::warning(
                             "feed::precision",
                             format!(
@@ -314,61 +314,15 @@ impl Pass for Feed {
     }
 
     fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
-        let span = block.span;
-        let mut next_read = None;
-        match &mut block.kind {
-            BlockKind::Motion(m) => {
-                let Target::Joints(end) = m.target else {
-                    // A pose this late means the joints are not known.
-                    self.prev = Joints::default();
-                    out.push(block);
-                    return;
-                };
-                if matches!(m.kind, MotionKind::Linear)
-                    && !m.machine_frame
-                    && m.feed.mode == FeedMode::PerMinute
-                {
-                    match m.feed.rate {
-                        Some(rate) if rate.is_finite() && rate > 0.0 => {
-                            let a = self.prev_read.or_else(|| self.read(&self.prev));
-                            let b = self.read(&end);
-                            if let (Some(a), Some(b)) = (a, b) {
-                                let (mode, f) = self.feed_for(span, &a, &b, rate, out);
-                                m.feed.mode = mode;
-                                m.feed.rate = Some(f);
-                            }
-                            // The next move starts here: read once.
-                            next_read = b;
-                        }
-                        _ => self.missing.hit(out, || {
-                            Diagnostic::error("feed::missing", "a cutting move without a feed rate")
-                                .at_span(span)
-                                .with_help("give FEDRAT (or F) before the first cutting move")
-                        }),
-                    }
-                }
-                self.prev = end;
-                if m.machine_frame {
-                    self.prev.forget(m.written);
-                    next_read = None;
-                }
-            }
-            BlockKind::Offset(o) => {
-                self.offsets = o.offsets;
-                for a in o.declared.known.iter() {
-                    if self.prev.get(a).is_none() {
-                        self.prev
-                            .set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
-                    }
-                }
-            }
-            BlockKind::Command(c) => self.prev.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
-            // Neither moves nor changes the frame.
-            BlockKind::Dwell { .. } | BlockKind::Comment => next_read = self.prev_read,
-        }
-        self.prev_read = next_read;
+        self.apply(&mut block, out.diags);
         out.push(block);
+    }
+
+    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        super::edit_in_place(self, blocks, out, |pass, block, diags| {
+            pass.apply(block, diags);
+            true
+        });
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {
@@ -405,5 +359,64 @@ impl Pass for Feed {
         for d in notes.into_iter().flatten() {
             out.diag(d);
         }
+    }
+}
+
+impl Feed {
+    /// Sets the F of a cutting move in place and follows the position.
+    fn apply(&mut self, block: &mut Block, diags: &mut Vec<Diagnostic>) {
+        let span = block.span;
+        let mut next_read = None;
+        match &mut block.kind {
+            BlockKind::Motion(m) => {
+                let Target::Joints(end) = m.target else {
+                    // A pose this late means the joints are not known.
+                    self.prev = Joints::default();
+                    return;
+                };
+                if matches!(m.kind, MotionKind::Linear)
+                    && !m.machine_frame
+                    && m.feed.mode == FeedMode::PerMinute
+                {
+                    match m.feed.rate {
+                        Some(rate) if rate.is_finite() && rate > 0.0 => {
+                            let a = self.prev_read.or_else(|| self.read(&self.prev));
+                            let b = self.read(&end);
+                            if let (Some(a), Some(b)) = (a, b) {
+                                let (mode, f) = self.feed_for(span, &a, &b, rate, diags);
+                                m.feed.mode = mode;
+                                m.feed.rate = Some(f);
+                            }
+                            // The next move starts here: read once.
+                            next_read = b;
+                        }
+                        _ => self.missing.hit(diags, || {
+                            Diagnostic::error("feed::missing", "a cutting move without a feed rate")
+                                .at_span(span)
+                                .with_help("give FEDRAT (or F) before the first cutting move")
+                        }),
+                    }
+                }
+                self.prev = end;
+                if m.machine_frame {
+                    self.prev.forget(m.written);
+                    next_read = None;
+                }
+            }
+            BlockKind::Offset(o) => {
+                self.offsets = o.offsets;
+                for a in o.declared.known.iter() {
+                    if self.prev.get(a).is_none() {
+                        self.prev
+                            .set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
+                    }
+                }
+            }
+            BlockKind::Command(c) => self.prev.forget(c.clobbers),
+            BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
+            // Neither moves nor changes the frame.
+            BlockKind::Dwell { .. } | BlockKind::Comment => next_read = self.prev_read,
+        }
+        self.prev_read = next_read;
     }
 }
