@@ -611,10 +611,79 @@ fn finish(result: Result<Summary, Diagnostic>, printer: &mut Printer) -> ExitCod
     code
 }
 
+/// The output file of an atomic write, with each few megabytes sent to the disk as soon
+/// as they are written (a helper thread's `fdatasync` on a second handle), so that the
+/// `fsync` before the rename waits for the last few only instead of the whole file at the
+/// end of the run (34 ms for 46 MB of 5-axis output here).
+struct EarlySync<'a> {
+    file: &'a mut File,
+    /// Bytes written since the last request.
+    unsynced: u64,
+    ask: Option<std::sync::mpsc::SyncSender<()>>,
+    worker: Option<std::thread::JoinHandle<()>>,
+}
+
+/// Bytes written between two requests to sync.
+const EARLY_SYNC_BYTES: u64 = 8 << 20;
+
+impl<'a> EarlySync<'a> {
+    fn new(file: &'a mut File) -> Self {
+        let (ask, worker) = match file.try_clone() {
+            Ok(handle) => {
+                let (ask, asked) = std::sync::mpsc::sync_channel::<()>(1);
+                let worker = std::thread::spawn(move || {
+                    // Errors are the final `fsync`'s to report.
+                    while asked.recv().is_ok() {
+                        let _ = handle.sync_data();
+                    }
+                });
+                (Some(ask), Some(worker))
+            }
+            // Without a second handle the final `fsync` does it all, as before.
+            Err(_) => (None, None),
+        };
+        EarlySync {
+            file,
+            unsynced: 0,
+            ask,
+            worker,
+        }
+    }
+}
+
+impl Write for EarlySync<'_> {
+    fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+        let n = self.file.write(buf)?;
+        self.unsynced += n as u64;
+        if self.unsynced >= EARLY_SYNC_BYTES {
+            self.unsynced = 0;
+            if let Some(ask) = &self.ask {
+                // A request still waiting covers these bytes too.
+                let _ = ask.try_send(());
+            }
+        }
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> io::Result<()> {
+        self.file.flush()
+    }
+}
+
+impl Drop for EarlySync<'_> {
+    fn drop(&mut self) {
+        // The worker ends when its channel closes.
+        self.ask = None;
+        if let Some(worker) = self.worker.take() {
+            let _ = worker.join();
+        }
+    }
+}
+
 /// Writes to a temporary file beside `path` and renames it over `path` only on success.
 fn write_atomically(
     path: &Path,
-    body: impl FnOnce(&mut File, &mut Printer) -> Result<Summary, Diagnostic>,
+    body: impl FnOnce(&mut (dyn Write + Send), &mut Printer) -> Result<Summary, Diagnostic>,
     printer: &mut Printer,
 ) -> ExitCode {
     // What the name stands for: a device or a pipe (`-o /dev/null`, a FIFO) is written
@@ -643,7 +712,9 @@ fn write_atomically(
             ));
         }
     };
-    let result = body(tmp.as_file_mut(), printer);
+    let mut out = EarlySync::new(tmp.as_file_mut());
+    let result = body(&mut out, printer);
+    drop(out);
     let ok = matches!(result, Ok(s) if s.errors == 0);
     let code = finish(result, printer);
     if ok {
@@ -678,7 +749,7 @@ fn write_atomically(
 /// have written part of its output there, as with standard output).
 fn write_in_place(
     path: &Path,
-    body: impl FnOnce(&mut File, &mut Printer) -> Result<Summary, Diagnostic>,
+    body: impl FnOnce(&mut (dyn Write + Send), &mut Printer) -> Result<Summary, Diagnostic>,
     printer: &mut Printer,
 ) -> ExitCode {
     match std::fs::OpenOptions::new().write(true).open(path) {
@@ -866,5 +937,33 @@ impl Printer {
             eprintln!("note: {n} more warnings [{code}] not shown");
         }
         self.hidden.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Past several sync requests the file holds exactly what was written, and dropping
+    /// the writer ends its helper thread.
+    #[test]
+    fn early_sync_writes_everything() {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let path = dir.path().join("out");
+        let mut file = File::create(&path).expect("create");
+        let chunk: Vec<u8> = (0..=255u8).cycle().take(1 << 20).collect();
+        {
+            let mut out = EarlySync::new(&mut file);
+            assert!(out.worker.is_some());
+            for _ in 0..20 {
+                out.write_all(&chunk).expect("write");
+            }
+            out.write_all(b"end").expect("write");
+        }
+        file.sync_all().expect("sync");
+        let back = std::fs::read(&path).expect("read");
+        assert_eq!(back.len(), 20 * chunk.len() + 3);
+        assert!(back.chunks(chunk.len()).take(20).all(|c| c == &chunk[..]));
+        assert!(back.ends_with(b"end"));
     }
 }
