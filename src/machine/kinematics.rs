@@ -100,15 +100,6 @@ impl Solutions {
 /// Below this, a vector's component across a rotation axis is treated as zero.
 const DEGENERATE: f64 = 1e-12;
 
-/// The coordinate index (0 = X, 1 = Y, 2 = Z) of the direction rotary `i` turns about.
-fn letter_index(m: &Machine, i: usize) -> usize {
-    match m.rotary[i].axis {
-        super::RotaryLetter::A => 0,
-        super::RotaryLetter::B => 1,
-        super::RotaryLetter::C => 2,
-    }
-}
-
 /// The angle that turns `from` towards `to` about unit `w` (exact when both make the same
 /// angle with `w`, closest otherwise), radians; `None` when either lies along `w`.
 fn angle_about(w: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> Option<f64> {
@@ -151,7 +142,9 @@ impl Machine {
         wrap180(r.direction * rad.to_degrees() + r.zero_offset)
     }
 
-    fn rotation(&self, i: usize, deg: f64) -> Rotation3<f64> {
+    /// The rotation of rotary `i` (listing order) at joint value `deg` (degrees), as in
+    /// [`Machine::rotations`], for a caller that needs one of the two.
+    pub fn rotation(&self, i: usize, deg: f64) -> Rotation3<f64> {
         let (s, c) = self.physical(i, deg).sin_cos();
         // Built directly: about a coordinate axis the matrix is known, and this runs for
         // every block (from_axis_angle would normalise and multiply out the general form).
@@ -308,7 +301,7 @@ impl Machine {
             }
         };
         let with_across = |i: usize| [i, (i + 1) % 3, (i + 2) % 3];
-        let (i1, i2) = (letter_index(self, ia), letter_index(self, ib));
+        let (i1, i2) = (self.rotary[ia].axis.index(), self.rotary[ib].axis.index());
         InverseLayout {
             w1: with_across(i1),
             ia,

@@ -55,6 +55,15 @@ pub enum RotaryLetter {
 }
 
 impl RotaryLetter {
+    /// The coordinate index (0 = X, 1 = Y, 2 = Z) of the direction it turns about.
+    pub fn index(self) -> usize {
+        match self {
+            RotaryLetter::A => 0,
+            RotaryLetter::B => 1,
+            RotaryLetter::C => 2,
+        }
+    }
+
     /// The IR axis.
     pub fn axis(self) -> Axis {
         match self {

@@ -47,7 +47,7 @@ use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, Motion, MotionKind, Span, Target};
 use crate::machine::angle::near_turn;
-use crate::machine::{Machine, Mount, RotaryLetter, ToolPose};
+use crate::machine::{Machine, Mount, ToolPose};
 
 /// Options of `densify`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -281,12 +281,7 @@ impl Densify {
             .collect();
         let rotary_lines = [0, 1].map(|i| {
             let r = &machine.rotary[i];
-            let u = match r.axis {
-                RotaryLetter::A => Vector3::x(),
-                RotaryLetter::B => Vector3::y(),
-                RotaryLetter::C => Vector3::z(),
-            };
-            (u, Vector3::from(r.pivot))
+            (Vector3::ith(r.axis.index(), 1.0), Vector3::from(r.pivot))
         });
         Ok(Densify {
             rotary_lines,
@@ -334,26 +329,22 @@ impl Densify {
     /// [`Densify::curvature_bounds`] (head rotaries outermost first, the linear axes, the
     /// table rotaries undone base first), measured as it enters each rotary's stage.
     fn reach(&self, xyz: &[f64; 3], angles: [f64; 2]) -> [f64; 2] {
-        // The last table stage's rotation is never used: that rotary is asked for at its
-        // zero, where the sine and cosine are cheap. The other rotation is the real one.
-        let mut asked = angles;
-        if let Some(&last) = self.table.last() {
-            asked[last] = self.machine.rotary[last].zero_offset;
-        }
-        let rot = self.machine.rotations(asked);
+        // Each stage's rotation is built where it turns the point: the last table stage
+        // only measures it, so that rotary's sine and cosine are not needed.
+        let rot = |i: usize| self.machine.rotation(i, angles[i]);
         let mut reach = [0.0; 2];
         let mut q = Vector3::zeros();
         for &i in self.head.iter().rev() {
             reach[i] = self.off_axis(i, &q);
             let c = self.rotary_lines[i].1;
-            q = c + rot[i] * (q - c);
+            q = c + rot(i) * (q - c);
         }
         q += Vector3::from(*xyz);
         if let Some((&last, undone)) = self.table.split_last() {
             for &i in undone {
                 reach[i] = self.off_axis(i, &q);
                 let c = self.rotary_lines[i].1;
-                q = c + rot[i].inverse() * (q - c);
+                q = c + rot(i).inverse() * (q - c);
             }
             // Where the point goes after the last stage does not enter the bound.
             reach[last] = self.off_axis(last, &q);
