@@ -232,7 +232,7 @@ pub(crate) struct Emitter<W: Write> {
     /// Grbl: inside a subprogram or control-flow run already reported (its further
     /// lines are not reported one by one).
     grbl_quiet: bool,
-    /// `fmt.decimals.axis(a)` for every axis, looked up by index on every word.
+    /// `fmt.decimals.axis(a)` for every axis, looked up by index.
     axis_decimals: [u8; AXIS_COUNT],
 }
 
@@ -717,13 +717,13 @@ impl<W: Write> Emitter<W> {
         self.text(change.code.gcode());
         for a in change.declared.known.iter() {
             let v = change.declared.values[a.index()];
-            self.word(a.letter(), v, self.fmt.decimals.axis(a), block)?;
+            self.word(a.letter(), v, self.axis_decimals[a.index()], block)?;
         }
         self.end_line(&block.comments, true)?;
         self.offsets = change.offsets;
         for a in Axis::ALL {
             self.printed[a.index()] = match self.pos.get(a) {
-                Some(v) => to_units(v + self.offsets[a.index()], self.fmt.decimals.axis(a)),
+                Some(v) => to_units(v + self.offsets[a.index()], self.axis_decimals[a.index()]),
                 None => None,
             };
         }
@@ -731,8 +731,10 @@ impl<W: Write> Emitter<W> {
             if self.pos.get(a).is_none() {
                 let v = change.declared.values[a.index()] - change.offsets[a.index()];
                 self.pos.set(a, v);
-                self.printed[a.index()] =
-                    to_units(change.declared.values[a.index()], self.fmt.decimals.axis(a));
+                self.printed[a.index()] = to_units(
+                    change.declared.values[a.index()],
+                    self.axis_decimals[a.index()],
+                );
                 if a == Axis::E {
                     self.e_units = to_units(v, self.fmt.decimals.extruder);
                 }

@@ -257,7 +257,9 @@ impl Ik {
         // Most blocks turn the axis far less than a step: tell that from the cosine (the
         // one `angle` takes the arccosine of) against a cone a little narrower than a step,
         // so that acos rounding cannot matter.
-        if from.dot(&axis) / (from.norm() * axis.norm()) >= self.within_step_cos {
+        // Both are unit vectors: their dot product is the cosine, to a rounding far
+        // inside the cone's margin.
+        if from.dot(&axis) >= self.within_step_cos {
             return prev;
         }
         let turn = from.angle(&axis).to_degrees();
