@@ -131,7 +131,7 @@ fn atan2_again(args: (f64, f64), earlier: Option<(f64, f64, f64)>) -> f64 {
 
 impl Machine {
     /// Physical rotation angle of rotary `i` at joint value `deg`, radians.
-    fn physical(&self, i: usize, deg: f64) -> f64 {
+    pub fn physical(&self, i: usize, deg: f64) -> f64 {
         let r = &self.rotary[i];
         (r.direction * (deg - r.zero_offset)).to_radians()
     }
@@ -146,6 +146,13 @@ impl Machine {
     /// [`Machine::rotations`], for a caller that needs one of the two.
     pub fn rotation(&self, i: usize, deg: f64) -> Rotation3<f64> {
         let (s, c) = self.physical(i, deg).sin_cos();
+        self.rotation_by(i, s, c)
+    }
+
+    /// The rotation of rotary `i` (listing order) by the physical angle whose sine and
+    /// cosine are `s` and `c` (direction and zero offset already applied), for a caller
+    /// that knows them without the angle.
+    pub fn rotation_by(&self, i: usize, s: f64, c: f64) -> Rotation3<f64> {
         // Built directly: about a coordinate axis the matrix is known, and this runs for
         // every block (from_axis_angle would normalise and multiply out the general form).
         let m = match self.rotary[i].axis {
@@ -255,7 +262,12 @@ impl Machine {
     /// The linear positions (X, Y, Z, mm) that put the tool tip on `tip` (part frame) with
     /// the rotaries at `angles`.
     pub fn linear(&self, tip: &Point3<f64>, angles: [f64; 2]) -> [f64; 3] {
-        let rot = self.rotations(angles);
+        self.linear_with(tip, &self.rotations(angles))
+    }
+
+    /// [`Machine::linear`] with the rotaries' rotations from [`Machine::rotations`] (or
+    /// [`Machine::rotation_by`]).
+    pub fn linear_with(&self, tip: &Point3<f64>, rot: &[Rotation3<f64>; 2]) -> [f64; 3] {
         if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
             // The common table-table case written out (ik runs it for every block): the
             // carried rotary turns the tip, then the base one; no head point to take off
@@ -268,7 +280,7 @@ impl Machine {
             let xyz = c0 + rot[0] * (on_base - c0);
             return [xyz.x, xyz.y, xyz.z];
         }
-        self.linear_by_chains(tip, &rot)
+        self.linear_by_chains(tip, rot)
     }
 
     /// [`Machine::linear`] for any layout, by the table and head chains.
