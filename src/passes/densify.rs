@@ -600,64 +600,105 @@ impl Pass for Densify {
     }
 
     fn run(&mut self, block: Block, out: &mut Output<'_>) {
+        if !self.advance(&block) {
+            self.split(&block, out);
+        }
+        out.push(block);
+    }
+
+    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        // Most moves stay within tolerance and pass unchanged: they are not moved.
+        super::edit_in_place(self, blocks, out, |pass, block, _| pass.advance(block));
+    }
+}
+
+impl Densify {
+    /// Follows the position through `block`, which passes unchanged; `false` (nothing
+    /// followed) when it is a move off the programmed path, for [`Densify::split`].
+    fn advance(&mut self, block: &Block) -> bool {
         match &block.kind {
             BlockKind::Motion(m) => {
                 let Target::Joints(end) = m.target else {
                     // A pose this late means the joints are not known.
                     self.remember(Joints::default());
-                    out.push(block);
-                    return;
+                    return true;
                 };
-                let checked = match m.kind {
-                    MotionKind::Linear => true,
-                    MotionKind::Rapid => self.options.rapids,
-                    MotionKind::Arc(_) => false,
-                } && !m.machine_frame;
-                let machine_frame = m.machine_frame.then_some(m.written);
                 let end_slot = 1 - self.prev_slot;
+                // Built in the free slot: the previous node stays until the move is done.
                 self.nodes[end_slot] = self.node(&end);
-                // The nodes are borrowed, not copied: each is about 200 bytes.
-                if checked
+                if self.checked(m)
                     && let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot])
                     && !self.within(a, b)
                 {
-                    let mut hit_limit = false;
-                    if self.options.max_depth == 0 {
-                        hit_limit = true;
-                    } else {
-                        let mid = self
-                            .turn_on_the_spot(a, b)
-                            .unwrap_or_else(|| self.midpoint(a, b));
-                        self.refine(m, block.span, a, &mid, 1, false, &mut hit_limit, out);
-                        self.refine(m, block.span, &mid, b, 1, true, &mut hit_limit, out);
-                    }
-                    if hit_limit {
-                        out.diag(
-                            Diagnostic::warning(
-                                "densify::depth",
-                                format!(
-                                    "the move is still off the programmed path after {} halvings",
-                                    self.options.max_depth
-                                ),
-                            )
-                            .at_span(block.span)
-                            .with_help(
-                                "the rotaries swing far for this move (a singularity or a branch change?); raise max_depth or the tolerances, or check the ik choices",
-                            ),
-                        );
-                    }
+                    return false;
                 }
-                self.prev = end;
-                self.prev_slot = end_slot;
-                if let Some(written) = machine_frame {
-                    self.forget(written);
-                }
+                self.moved_to(m, end, end_slot);
             }
             BlockKind::Command(c) => self.forget(c.clobbers),
             BlockKind::Verbatim(v) => self.forget(v.clobbers),
             _ => {}
         }
-        out.push(block);
+        true
+    }
+
+    /// Whether `densify` checks motion `m` against the programmed path.
+    fn checked(&self, m: &Motion) -> bool {
+        let by_kind = match m.kind {
+            MotionKind::Linear => true,
+            MotionKind::Rapid => self.options.rapids,
+            MotionKind::Arc(_) => false,
+        };
+        by_kind && !m.machine_frame
+    }
+
+    /// The position is now `end` of motion `m`, whose node is in `nodes[end_slot]`.
+    fn moved_to(&mut self, m: &Motion, end: Joints, end_slot: usize) {
+        self.prev = end;
+        self.prev_slot = end_slot;
+        if m.machine_frame {
+            self.forget(m.written);
+        }
+    }
+
+    /// Emits the pieces before the move `block`, which [`Densify::advance`] found off the
+    /// programmed path (its end node built), and follows the position to its end.
+    fn split(&mut self, block: &Block, out: &mut Output<'_>) {
+        let BlockKind::Motion(m) = &block.kind else {
+            return;
+        };
+        let Target::Joints(end) = m.target else {
+            return;
+        };
+        let end_slot = 1 - self.prev_slot;
+        if let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot]) {
+            // The nodes are borrowed, not copied: each is about 200 bytes.
+            let mut hit_limit = false;
+            if self.options.max_depth == 0 {
+                hit_limit = true;
+            } else {
+                let mid = self
+                    .turn_on_the_spot(a, b)
+                    .unwrap_or_else(|| self.midpoint(a, b));
+                self.refine(m, block.span, a, &mid, 1, false, &mut hit_limit, out);
+                self.refine(m, block.span, &mid, b, 1, true, &mut hit_limit, out);
+            }
+            if hit_limit {
+                out.diag(
+                    Diagnostic::warning(
+                        "densify::depth",
+                        format!(
+                            "the move is still off the programmed path after {} halvings",
+                            self.options.max_depth
+                        ),
+                    )
+                    .at_span(block.span)
+                    .with_help(
+                        "the rotaries swing far for this move (a singularity or a branch change?); raise max_depth or the tolerances, or check the ik choices",
+                    ),
+                );
+            }
+        }
+        self.moved_to(m, end, end_slot);
     }
 }
 
