@@ -803,6 +803,36 @@ fn feed_warnings_and_errors() {
     }
 }
 
+/// A move after one to a pose (whose joints `feed` does not know) starts at an unknown
+/// position: its feed stays as programmed, not one worked out from the move before the
+/// pose.
+#[test]
+fn feed_forgets_the_position_at_a_pose() {
+    let m = machine("emoc-x5");
+    let d = emoc_decimals();
+    let a = joints(&m, [0.0, 0.0, 0.0], [0.0, 0.0]);
+    let b = joints(&m, [10.0, 0.0, 0.0], [0.0, 0.0]);
+    let c = joints(&m, [10.0, 20.0, 0.0], [0.0, 30.0]);
+    let mut pose = motion(3, MotionKind::Rapid, b, None);
+    if let BlockKind::Motion(mo) = &mut pose.kind {
+        mo.target = Target::Pose(ncpost::ir::Pose::new(
+            Point3::new(50.0, 50.0, 50.0),
+            Vector3::z_axis(),
+        ));
+    }
+    let blocks = vec![
+        motion(1, MotionKind::Rapid, a, None),
+        motion(2, MotionKind::Linear, b, Some(500.0)),
+        pose,
+        motion(4, MotionKind::Linear, c, Some(500.0)),
+    ];
+    let (out, diags) = run("feed", "", &m, Some(d), blocks.clone());
+    assert!(diags.is_empty(), "{diags:?}");
+    assert_eq!(feed_of(&out[1]).rate, Some(500.0), "a plain X move");
+    assert_eq!(out[2], blocks[2]);
+    assert_eq!(out[3], blocks[3], "from an unknown position the feed stays");
+}
+
 /// A tiny E-moc X5 program: a rapid in, a long tilting cut that densify splits, a short
 /// cut that it keeps, a tool change in between.
 fn tiny_emoc() -> (Machine, Vec<Block>) {

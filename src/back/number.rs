@@ -38,7 +38,19 @@ pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
 /// ```
 #[inline]
 pub fn printed(value: f64, decimals: u8) -> Option<f64> {
-    to_units(value, decimals).map(|u| u as f64 / POW10[usize::from(decimals.min(9))])
+    to_units(value, decimals).map(|u| from_units(u, decimals))
+}
+
+/// The value of `units` at `decimals` places (at most 9): what [`printed`] returns for
+/// the value [`to_units`] rounded to them, for a caller that needs both.
+///
+/// ```
+/// use ncpost::back::number::from_units;
+/// assert_eq!(from_units(-1235, 3), -1.235);
+/// ```
+#[inline]
+pub fn from_units(units: i64, decimals: u8) -> f64 {
+    units as f64 / POW10[usize::from(decimals.min(9))]
 }
 
 /// `10^d` for the decimals a number is printed with (at most 9), exact.

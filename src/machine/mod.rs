@@ -24,6 +24,7 @@
 
 pub mod angle;
 mod config_g;
+pub mod grid;
 mod kinematics;
 pub mod polar;
 

@@ -12,7 +12,9 @@
 //! emitted F is the rule's distance over `t`. Everything is computed from the numbers the
 //! controller will read: each joint value rounded as the backend prints it (with the G92
 //! offsets in force), both for `L` (forward kinematics of the rounded joints) and for the
-//! controller's distance. The IR joint values themselves are left exact.
+//! controller's distance. The IR joint values themselves are left exact. A printed rotary
+//! value is a whole number of units, so the sines and cosines of the kinematics come from
+//! the tables of [`RotaryGrid`] rather than libm (which stays for values off the grid).
 //!
 //! A move that turns the tool about a fixed tip has no tip speed; it turns at
 //! `reorient_feed` degrees per minute (over the two rotary deltas) instead.
@@ -30,9 +32,12 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::{self, to_units};
+use crate::back::number::{from_units, to_units};
 use crate::diag::Diagnostic;
-use crate::ir::{AXIS_COUNT, Axis, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target};
+use crate::ir::{
+    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target,
+};
+use crate::machine::grid::RotaryGrid;
 use crate::machine::{FeedRule, Machine};
 
 /// Options of `feed`.
@@ -100,9 +105,6 @@ struct Read {
     printed: [f64; 5],
     /// The tool tip of the printed position (part frame).
     tip: Point3<f64>,
-    /// The exact IR position (its tip is only needed to tell a reorientation from a
-    /// short move, so it is computed when the printed tips are close).
-    exact: [f64; 5],
 }
 
 /// The `feed` pass.
@@ -112,13 +114,25 @@ pub struct Feed {
     reorient_feed: f64,
     decimals: Option<Decimals>,
     axes: [Axis; 5],
+    /// `axes` as a set, to check that a position knows all five at once.
+    five: AxisSet,
+    /// [`Axis::index`] of each of `axes`.
+    index: [usize; 5],
     /// The printed decimals of each of `axes`, when the backend prints at all.
     places: Option<[u8; 5]>,
-    /// Each of `axes`' `max_feed` and the speed above which it warns (a little over it,
-    /// so that a move at exactly the limit does not).
-    max_feed: [Option<(f64, f64)>; 5],
+    /// The rotaries on the grid of their printed decimals, when the backend prints them
+    /// with few enough for the tables.
+    grid: Option<RotaryGrid>,
+    /// The G92 offset of each rotary in whole units of the grid; `None` when it is not
+    /// on the grid (the joint value then is not either, and libm turns it).
+    offset_units: [Option<i64>; 2],
+    /// Each of `axes`' `max_feed` (infinite when it has none) and the speed above which
+    /// it warns (a little over it, so that a move at exactly the limit does not; infinite
+    /// again, so that the test needs no branch on whether there is one).
+    max_feed: [(f64, f64); 5],
     /// `10^decimals.feed`: a printed F is a whole number of `1 / feed_scale`.
     feed_scale: f64,
+    /// Where the next move starts.
     prev: Joints,
     /// `prev` as read, when already computed under the offsets in force.
     prev_read: Option<Read>,
@@ -140,12 +154,15 @@ impl Feed {
         }
         let [r0, r1] = machine.rotary_axes();
         let axes = [Axis::X, Axis::Y, Axis::Z, r0, r1];
-        let max_feed = axes.map(|a| {
-            let max = machine.controller.max_feed.get(a)?;
-            Some((max, max * (1.0 + 1e-9)))
+        let max_feed = axes.map(|a| match machine.controller.max_feed.get(a) {
+            Some(max) => (max, max * (1.0 + 1e-9)),
+            None => (f64::INFINITY, f64::INFINITY),
         });
-        Ok(Feed {
+        let mut feed = Feed {
             rule: options.mode.unwrap_or(machine.controller.feed_rule),
+            grid: context
+                .decimals
+                .and_then(|d| RotaryGrid::new(&machine, d.rotary)),
             machine,
             reorient_feed: options.reorient_feed,
             decimals: context.decimals,
@@ -153,6 +170,9 @@ impl Feed {
             max_feed,
             feed_scale: context.decimals.map_or(1.0, |d| 10f64.powi(d.feed as i32)),
             axes,
+            five: axes.into_iter().collect(),
+            index: axes.map(Axis::index),
+            offset_units: [None; 2],
             prev: Joints::default(),
             prev_read: None,
             offsets: [0.0; AXIS_COUNT],
@@ -161,43 +181,87 @@ impl Feed {
             min_speed: Counted::default(),
             max_speed: Counted::default(),
             precision: Counted::default(),
-        })
+        };
+        feed.set_offsets([0.0; AXIS_COUNT]);
+        Ok(feed)
+    }
+
+    /// Puts `offsets` (the G92 offsets) in force.
+    fn set_offsets(&mut self, offsets: [f64; AXIS_COUNT]) {
+        self.offsets = offsets;
+        self.offset_units = std::array::from_fn(|i| {
+            let grid = self.grid.as_ref()?.grid();
+            grid.units(offsets[self.index[3 + i]])
+        });
     }
 
     /// The five axes of `j` as the controller reads them; `None` if one is unknown or
     /// cannot be printed.
     fn read(&self, j: &Joints) -> Option<Read> {
+        if j.known.intersection(self.five) != self.five {
+            return None;
+        }
         let mut printed = [0.0; 5];
         let mut ir = [0.0; 5];
-        let mut exact = [0.0; 5];
-        for (k, &a) in self.axes.iter().enumerate() {
-            let v = j.get(a)?;
-            let off = self.offsets[a.index()];
+        // What each axis prints as, in units of its decimals.
+        let mut units = [0; 5];
+        for k in 0..5 {
+            let i = self.index[k];
+            let (v, off) = (j.values[i], self.offsets[i]);
             printed[k] = match self.places {
-                Some(places) => number::printed(v + off, places[k])?,
+                Some(places) => {
+                    units[k] = to_units(v + off, places[k])?;
+                    from_units(units[k], places[k])
+                }
                 None => v + off,
             };
             ir[k] = printed[k] - off;
-            exact[k] = v;
         }
-        Some(Read {
-            printed,
-            tip: self.tip(&ir),
-            exact,
-        })
+        let (s0, c0) = self.sin_cos(0, ir[3], units[3]);
+        let (s1, c1) = self.sin_cos(1, ir[4], units[4]);
+        let rot = [
+            self.machine.rotation_by(0, s0, c0),
+            self.machine.rotation_by(1, s1, c1),
+        ];
+        let tip = self.machine.forward_with(&[ir[0], ir[1], ir[2]], &rot).tip;
+        Some(Read { printed, tip })
     }
 
-    /// The tool tip of the five axes `v` (in the order of `axes`).
-    fn tip(&self, v: &[f64; 5]) -> Point3<f64> {
+    /// Sine and cosine of rotary `i`'s physical angle at joint value `deg`, printed as
+    /// `units` (with the offset in force): from the grid's tables when the joint value
+    /// lies on it.
+    #[inline(always)]
+    fn sin_cos(&self, i: usize, deg: f64, units: i64) -> (f64, f64) {
+        if let (Some(grid), Some(offset)) = (&self.grid, self.offset_units[i])
+            && let Some(sc) = grid.sin_cos(i, units - offset)
+        {
+            return sc;
+        }
+        self.libm_sin_cos(i, deg)
+    }
+
+    /// [`Feed::sin_cos`] off the grid (out of line: it is rare, and the libm call would
+    /// make every read save its registers).
+    #[cold]
+    #[inline(never)]
+    fn libm_sin_cos(&self, i: usize, deg: f64) -> (f64, f64) {
+        self.machine.physical(i, deg).sin_cos()
+    }
+
+    /// The tool tip of the exact joint values `j`, which [`Feed::read`] could read.
+    fn exact_tip(&self, j: &Joints) -> Point3<f64> {
+        let v = self.index.map(|i| j.values[i]);
         self.machine.forward(&[v[0], v[1], v[2]], [v[3], v[4]]).tip
     }
 
-    /// The new feed of a linear move from `prev` to `end` at programmed tip speed `rate`.
+    /// The new feed of a linear move from `prev` to `end` at programmed tip speed `rate`;
+    /// `a` and `b` are `prev` and `end` as read (the exact joints are only needed when
+    /// the printed tips are close, to tell a reorientation from a short move).
     fn feed_for(
         &mut self,
         span: Span,
-        a: &Read,
-        b: &Read,
+        (a, b): (&Read, &Read),
+        end: &Joints,
         rate: f64,
         diags: &mut Vec<Diagnostic>,
     ) -> (FeedMode, f64) {
@@ -221,7 +285,7 @@ impl Feed {
         let exact = if length > 0.01 {
             length
         } else {
-            (self.tip(&b.exact) - self.tip(&a.exact)).norm()
+            (self.exact_tip(end) - self.exact_tip(&self.prev)).norm()
         };
         let minutes = if exact.min(length) <= ZERO_TIP {
             drot() / self.reorient_feed
@@ -255,9 +319,7 @@ impl Feed {
             });
         }
         for (k, &axis) in self.axes.iter().enumerate() {
-            let Some((max, limit)) = self.max_feed[k] else {
-                continue;
-            };
+            let (max, limit) = self.max_feed[k];
             let v = delta[k].abs() / minutes;
             if v > limit {
                 self.max_speed.hit(diags, || {
@@ -372,6 +434,7 @@ impl Feed {
                 let Target::Joints(end) = m.target else {
                     // A pose this late means the joints are not known.
                     self.prev = Joints::default();
+                    self.prev_read = None;
                     return;
                 };
                 if matches!(m.kind, MotionKind::Linear)
@@ -383,7 +446,7 @@ impl Feed {
                             let a = self.prev_read.or_else(|| self.read(&self.prev));
                             let b = self.read(&end);
                             if let (Some(a), Some(b)) = (a, b) {
-                                let (mode, f) = self.feed_for(span, &a, &b, rate, diags);
+                                let (mode, f) = self.feed_for(span, (&a, &b), &end, rate, diags);
                                 m.feed.mode = mode;
                                 m.feed.rate = Some(f);
                             }
@@ -404,7 +467,7 @@ impl Feed {
                 }
             }
             BlockKind::Offset(o) => {
-                self.offsets = o.offsets;
+                self.set_offsets(o.offsets);
                 for a in o.declared.known.iter() {
                     if self.prev.get(a).is_none() {
                         self.prev
@@ -412,11 +475,171 @@ impl Feed {
                     }
                 }
             }
-            BlockKind::Command(c) => self.prev.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
+            BlockKind::Command(c) => {
+                self.prev.forget(c.clobbers);
+                // A command that moves no axis leaves the reading as it is.
+                if c.clobbers.is_empty() {
+                    next_read = self.prev_read;
+                }
+            }
+            BlockKind::Verbatim(v) => {
+                self.prev.forget(v.clobbers);
+                if v.clobbers.is_empty() {
+                    next_read = self.prev_read;
+                }
+            }
             // Neither moves nor changes the frame.
             BlockKind::Dwell { .. } | BlockKind::Comment => next_read = self.prev_read,
         }
         self.prev_read = next_read;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::back::number::printed;
+    use crate::preset::Preset;
+    use proptest::prelude::*;
+
+    const PRESETS: [&str; 4] = ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"];
+
+    fn feed(preset: usize, zero_offsets: [f64; 2], rotary_decimals: u8) -> Feed {
+        let mut m = Preset::builtin(PRESETS[preset])
+            .and_then(|p| p.machine)
+            .expect("a machine");
+        for (r, z) in m.rotary.iter_mut().zip(zero_offsets) {
+            r.zero_offset = z;
+        }
+        let decimals = Decimals {
+            linear: 4,
+            rotary: rotary_decimals,
+            extruder: 5,
+            feed: 2,
+        };
+        let ctx = Context {
+            machine: Some(&m),
+            decimals: Some(decimals),
+            ..Context::default()
+        };
+        Feed::new(m.clone(), Options::default(), &ctx).expect("a feed pass")
+    }
+
+    /// The tip `read` should find: `Machine::forward` (libm) of the joints as printed,
+    /// with the offsets taken off again, and the printed values.
+    fn forward_of_printed(f: &Feed, j: &Joints) -> (Point3<f64>, [f64; 5]) {
+        let places = f.places.expect("printed");
+        let p: [f64; 5] = std::array::from_fn(|k| {
+            let i = f.index[k];
+            printed(j.values[i] + f.offsets[i], places[k]).expect("fits")
+        });
+        let v: [f64; 5] = std::array::from_fn(|k| p[k] - f.offsets[f.index[k]]);
+        (f.machine.forward(&[v[0], v[1], v[2]], [v[3], v[4]]).tip, p)
+    }
+
+    fn joints(f: &Feed, v: [f64; 5]) -> Joints {
+        let mut j = Joints::default();
+        for (a, v) in f.axes.iter().zip(v) {
+            j.set(*a, v);
+        }
+        j
+    }
+
+    /// An offset on the grid of four decimals, or (for `on_grid` false) most likely not.
+    fn offset(v: f64, on_grid: bool) -> f64 {
+        if on_grid { (v * 1e4).round() / 1e4 } else { v }
+    }
+
+    /// Reads `v` under `offsets` and checks it against [`forward_of_printed`] within
+    /// `bound` mm; with `table` set, both rotaries must come from the tables.
+    fn check_read(
+        f: &mut Feed,
+        v: [f64; 5],
+        offsets: [f64; 5],
+        table: bool,
+        bound: f64,
+    ) -> Result<(), TestCaseError> {
+        let mut all = [0.0; AXIS_COUNT];
+        for k in 0..5 {
+            all[f.index[k]] = offsets[k];
+        }
+        f.set_offsets(all);
+        let on_grid = f.offset_units.map(|u| f.grid.is_some() && u.is_some());
+        prop_assert!(!table || on_grid == [true; 2]);
+        let table = on_grid.contains(&true);
+        let j = joints(f, v);
+        let read = f.read(&j).expect("readable");
+        let (tip, p) = forward_of_printed(f, &j);
+        prop_assert_eq!(read.printed.map(f64::to_bits), p.map(f64::to_bits));
+        let off = (read.tip - tip).norm();
+        if table {
+            prop_assert!(
+                off <= bound,
+                "{:e} mm off: {:?} against {:?}",
+                off,
+                read.tip,
+                tip
+            );
+        } else {
+            // Off the grid it is the same libm computation.
+            prop_assert_eq!(
+                read.tip.coords.map(f64::to_bits),
+                tip.coords.map(f64::to_bits)
+            );
+        }
+        Ok(())
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(1000))]
+
+        /// The tips of the tables' sines and cosines are those of libm's to 1e-12 mm, on
+        /// every layout, with G92 offsets and calibration offsets on the grid or off it.
+        #[test]
+        fn read_tips_are_forward_of_the_printed_joints(
+            preset in 0..PRESETS.len(),
+            xyz in proptest::array::uniform3(-100.0f64..100.0),
+            angles in proptest::array::uniform2(-400.0f64..400.0),
+            offsets in proptest::array::uniform5(-30.0f64..30.0),
+            zero in proptest::array::uniform2(-5.0f64..5.0),
+            (offsets_on_grid, zero_on_grid) in (proptest::bool::weighted(0.8), proptest::bool::ANY),
+            decimals in 2u8..=5,
+        ) {
+            let zero = zero.map(|z| offset(z, zero_on_grid));
+            let mut f = feed(preset, zero, decimals);
+            let offsets = offsets.map(|o| offset(o, offsets_on_grid));
+            let table = decimals == 4 && offsets_on_grid;
+            let v = [xyz[0], xyz[1], xyz[2], angles[0], angles[1]];
+            check_read(&mut f, v, offsets, table, 1e-12)?;
+            // Without offsets, the grid is used whenever it can be.
+            check_read(&mut f, v, [0.0; 5], decimals <= 4, 1e-12)?;
+        }
+
+        /// Many turns out (C = 49773.1203 degrees), libm's own argument is rounded by up to
+        /// 2.2e-16 of the angle in radians, three times: that bounds the difference.
+        #[test]
+        fn read_tips_many_turns_out(
+            preset in 0..PRESETS.len(),
+            xyz in proptest::array::uniform3(-100.0f64..100.0),
+            angles in proptest::array::uniform2(-60_000.0f64..60_000.0),
+        ) {
+            let mut f = feed(preset, [0.0; 2], 4);
+            let v = [xyz[0], xyz[1], xyz[2], angles[0], angles[1]];
+            let radians = (angles[0].abs() + angles[1].abs()).to_radians();
+            // A generous 600 mm from the axes.
+            let bound = 1e-12 + 600.0 * 3.0 * 2.3e-16 * radians;
+            check_read(&mut f, v, [0.0; 5], true, bound)?;
+        }
+    }
+
+    #[test]
+    fn the_example_turn() {
+        let mut f = feed(0, [0.0; 2], 4);
+        let v = [12.5, -40.25, 7.0, 33.3333, 49773.1203];
+        check_read(&mut f, v, [0.0; 5], true, 1e-10).unwrap();
+        check_read(&mut f, v, [0.0, 0.0, 0.0, 0.5, -720.0], true, 1e-10).unwrap();
+        // A on the grid, C off it.
+        check_read(&mut f, v, [0.0, 0.0, 0.0, 0.5, 1e-7], false, 1e-10).unwrap();
+        assert_eq!(f.offset_units, [Some(5000), None]);
     }
 }
