@@ -49,27 +49,27 @@ struct Condition {
 /// [`Machine::inverse_layout`] for [`Machine::inverse_with`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InverseLayout {
-    /// Coordinate indices (every rotary turns about X, Y or Z) of `w1` and of the two
-    /// directions across it, in cyclic order.
-    w1: [usize; 3],
+    /// Coordinate index of `w1` (every rotary turns about X, Y or Z), its rotary and the
+    /// sign of that rotary's angle.
+    w1: usize,
     ia: usize,
     sa: f64,
     /// The same for `w2`.
-    w2: [usize; 3],
+    w2: usize,
     ib: usize,
     sb: f64,
-    /// Coordinate index of the direction across both, and the sign of `w1 × w2` along it.
-    third: usize,
-    normal: f64,
     /// The tool axis is `p` (and `q` is Z); otherwise `p` is Z and `q` the tool axis.
     axis_is_p: bool,
 }
 
 /// The orientations [`Machine::inverse_with`] found: those of [`Machine::inverse`], in its
-/// order, with [`Machine::singularity_cos`] of the same axis.
+/// order, with [`Machine::singularity_cos`] of the same axis and the sine and cosine of
+/// each orientation's physical rotary angles.
 #[derive(Debug, Clone, Copy)]
 pub struct Solutions {
     found: [Orientation; 2],
+    /// (sine, cosine) of the physical angle of each rotary of each orientation.
+    trig: [[(f64, f64); 2]; 2],
     len: usize,
     /// [`Machine::singularity_cos`] of the tool axis.
     pub singularity_cos: f64,
@@ -82,6 +82,7 @@ impl Solutions {
             angles: [0.0; 2],
             free: None,
         }; 2],
+        trig: [[(0.0, 1.0); 2]; 2],
         len: 0,
         singularity_cos: 0.0,
     };
@@ -91,8 +92,17 @@ impl Solutions {
         &self.found[..self.len]
     }
 
-    fn push(&mut self, o: Orientation) {
+    /// The sine and cosine of the physical angle ([`Machine::physical`] of the joint value)
+    /// of both rotaries of orientation `k` (an index into [`Solutions::orientations`]),
+    /// listing order, for [`Machine::rotation_by`]: what the angles came from, without
+    /// going through degrees and back. A whole turn of a joint value keeps them.
+    pub fn sin_cos(&self, k: usize) -> [(f64, f64); 2] {
+        self.trig[k]
+    }
+
+    fn push(&mut self, o: Orientation, trig: [(f64, f64); 2]) {
         self.found[self.len] = o;
+        self.trig[self.len] = trig;
         self.len += 1;
     }
 }
@@ -111,22 +121,90 @@ fn angle_about(w: &Vector3<f64>, from: &Vector3<f64>, to: &Vector3<f64>) -> Opti
     Some(w.dot(&f.cross(&t)).atan2(f.dot(&t)))
 }
 
-/// `y.atan2(x)` for `args = (y, x)`, taken from an earlier result `(y0, x0, angle)` when
-/// the arguments are the same but perhaps for the sign of y (atan2 is odd in y: the
-/// second solution's β often differs only so).
-fn atan2_again(args: (f64, f64), earlier: Option<(f64, f64, f64)>) -> f64 {
-    let (y, x) = args;
-    if let Some((y0, x0, angle)) = earlier
-        && x.to_bits() == x0.to_bits()
-    {
-        if y.to_bits() == y0.to_bits() {
-            return angle;
-        }
-        if y.to_bits() == (-y0).to_bits() {
-            return -angle;
+/// An angle from its `atan2` arguments, with its sine and cosine.
+#[derive(Debug, Clone, Copy)]
+struct Turn {
+    /// The arguments, `y.atan2(x)`.
+    y: f64,
+    x: f64,
+    /// Radians, in [-π, π].
+    angle: f64,
+    sin: f64,
+    cos: f64,
+}
+
+impl Turn {
+    /// The angle `y.atan2(x)` of `args = (y, x)`, with its sine and cosine.
+    #[inline(always)]
+    fn of(args: (f64, f64)) -> Turn {
+        let (y, x) = args;
+        // Both arguments are bounded and not both near zero (inverse_with's degenerate
+        // tests), so the squares neither overflow nor underflow.
+        let r = (y * y + x * x).sqrt();
+        Turn {
+            y,
+            x,
+            angle: y.atan2(x),
+            sin: y / r,
+            cos: x / r,
         }
     }
-    y.atan2(x)
+
+    /// [`Turn::of`] `args`, derived from `self` when the arguments are the same but for
+    /// their signs (the second solution's usually differ from the first's so: `atan2` is
+    /// odd in y, and negating x mirrors the angle about ±π/2), without a second library
+    /// `atan2`. A derived angle is within an ulp or two of `atan2` (the subtraction from π
+    /// rounds); the sine and cosine are `self`'s with signs changed, exactly.
+    #[inline(always)]
+    fn again(&self, args: (f64, f64)) -> Turn {
+        const SIGN: u64 = 1 << 63;
+        let (y, x) = args;
+        // The sign bits that differ, when nothing else does.
+        let dy = y.to_bits() ^ self.y.to_bits();
+        let dx = x.to_bits() ^ self.x.to_bits();
+        if (dy | dx) & !SIGN != 0 {
+            return Turn::of(args);
+        }
+        let flip = |v: f64, d: u64| f64::from_bits(v.to_bits() ^ d);
+        // self.angle has the sign of self.y, which is not zero (inverse_with leaves y = 0
+        // to the general solution): negating x takes it to ±π − angle, negating y negates.
+        let mirrored = if dx != 0 {
+            std::f64::consts::PI.copysign(self.angle) - self.angle
+        } else {
+            self.angle
+        };
+        Turn {
+            y,
+            x,
+            angle: flip(mirrored, dy),
+            sin: flip(self.sin, dy),
+            cos: flip(self.cos, dx),
+        }
+    }
+}
+
+/// `(f × c, f · c)` of two vectors across a coordinate axis, given by their components
+/// in cyclic order: `atan2`'s arguments for the angle from `f` to `c` about that axis.
+#[inline(always)]
+fn cross_dot(f: (f64, f64), c: (f64, f64)) -> (f64, f64) {
+    (f.0 * c.1 - f.1 * c.0, f.0 * c.0 + f.1 * c.1)
+}
+
+/// `angle_about`'s `atan2` arguments for α and β, `(w·(f×c), f·c)` with `f` (p across
+/// w1, q across w2, in cyclic order) and the common vector `c` across w, for the common
+/// vector with `c3` along the third axis. Across w1 the common vector has y (along w2)
+/// and `c3`, across w2 x and `c3`; which comes first in cyclic order is the layout's
+/// (`order`: whether w2 follows w1, whether w1 follows w2).
+#[inline(always)]
+fn turn_args(
+    (f1, f2): ((f64, f64), (f64, f64)),
+    (x, y): (f64, f64),
+    c3: f64,
+    (w2_first, w1_first): (bool, bool),
+) -> ((f64, f64), (f64, f64)) {
+    let c1 = if w2_first { (y, c3) } else { (c3, y) };
+    let c2 = if w1_first { (x, c3) } else { (c3, x) };
+    (cross_dot(f1, c1), cross_dot(f2, c2))
 }
 
 impl Machine {
@@ -137,6 +215,7 @@ impl Machine {
     }
 
     /// Joint value of rotary `i` for a physical angle, degrees in (-180, 180].
+    #[inline(always)]
     fn joint(&self, i: usize, rad: f64) -> f64 {
         let r = &self.rotary[i];
         wrap180(r.direction * rad.to_degrees() + r.zero_offset)
@@ -312,18 +391,13 @@ impl Machine {
                 (ti, 1.0, hi, 1.0, true)
             }
         };
-        let with_across = |i: usize| [i, (i + 1) % 3, (i + 2) % 3];
-        let (i1, i2) = (self.rotary[ia].axis.index(), self.rotary[ib].axis.index());
         InverseLayout {
-            w1: with_across(i1),
+            w1: self.rotary[ia].axis.index(),
             ia,
             sa,
-            w2: with_across(i2),
+            w2: self.rotary[ib].axis.index(),
             ib,
             sb,
-            third: 3 - i1 - i2,
-            // e_i × e_(i+1) = e_(i+2); the other order flips the sign.
-            normal: if (i1 + 1) % 3 == i2 { 1.0 } else { -1.0 },
             axis_is_p,
         }
     }
@@ -333,11 +407,11 @@ impl Machine {
         let z = Vector3::z();
         let (p, q) = if l.axis_is_p { (*axis, z) } else { (z, *axis) };
         Condition {
-            w1: Vector3::ith(l.w1[0], 1.0),
+            w1: Vector3::ith(l.w1, 1.0),
             p,
             ia: l.ia,
             sa: l.sa,
-            w2: Vector3::ith(l.w2[0], 1.0),
+            w2: Vector3::ith(l.w2, 1.0),
             q,
             ib: l.ib,
             sb: l.sb,
@@ -353,11 +427,38 @@ impl Machine {
 
     /// [`Machine::inverse`] with the machine's [`Machine::inverse_layout`] worked out
     /// beforehand, and the vector algebra written out: every rotary turns about X, Y or Z,
-    /// so a product with a rotation axis is a pick of components. The values are those of
-    /// the general vector solution to the bit: a product with 0 or 1 left out changes at
+    /// so a product with a rotation axis is a pick of components. The first orientation is
+    /// the general vector solution's to the bit: a product with 0 or 1 left out changes at
     /// most the sign of a zero, and where that sign could show (an `atan2` of zero, a
-    /// degenerate case) the general solution runs instead.
+    /// degenerate case) the general solution runs instead. So is the second one's angle
+    /// where only the sign of the `atan2` argument y differs; an angle whose x argument
+    /// differs only in sign as well is derived from the first by a half turn or a mirror,
+    /// and may differ from `atan2` in the last bit or two. The sines and cosines come from
+    /// the `atan2` arguments.
     pub fn inverse_with(&self, layout: &InverseLayout, axis: Unit<Vector3<f64>>) -> Solutions {
+        let (i1, i2, axis_is_p) = (layout.w1, layout.w2, layout.axis_is_p);
+        // The built-in machines' layouts get copies with the coordinate indices constant
+        // (every product picks components by them: no index loads, no bounds checks);
+        // the same code runs with them variable for any other.
+        match (i1, i2, axis_is_p) {
+            (2, 0, true) => self.inverse_coordinates(layout, axis, 2, 0, true),
+            (2, 1, true) => self.inverse_coordinates(layout, axis, 2, 1, true),
+            (1, 0, false) => self.inverse_coordinates(layout, axis, 1, 0, false),
+            _ => self.inverse_coordinates(layout, axis, i1, i2, axis_is_p),
+        }
+    }
+
+    /// [`Machine::inverse_with`] for rotation axes `w1` and `w2` along coordinates `i1`
+    /// and `i2` (perpendicular: `i1 != i2`), with the tool axis as `p` or `q`.
+    #[inline(always)]
+    fn inverse_coordinates(
+        &self,
+        layout: &InverseLayout,
+        axis: Unit<Vector3<f64>>,
+        i1: usize,
+        i2: usize,
+        axis_is_p: bool,
+    ) -> Solutions {
         let t = [axis.x, axis.y, axis.z];
         // Bounded components keep every product finite, as the left-out ones were
         // (0 · ∞ would not be 0).
@@ -365,18 +466,22 @@ impl Machine {
             return self.inverse_general(axis);
         }
         let z = [0.0, 0.0, 1.0];
-        let (p, q) = if layout.axis_is_p { (t, z) } else { (z, t) };
-        let ([i1, j1, k1], [i2, j2, k2]) = (layout.w1, layout.w2);
+        let (p, q) = if axis_is_p { (t, z) } else { (z, t) };
+        let (j1, k1, j2, k2) = ((i1 + 1) % 3, (i1 + 2) % 3, (i2 + 1) % 3, (i2 + 2) % 3);
+        // e_i × e_(i+1) = e_(i+2): the sign of w1 × w2 along the third axis.
+        let normal = if j1 == i2 { 1.0 } else { -1.0 };
         // Perpendicular axes: w1·w2 = 0, so the common vector is x w1 + y w2 ± zc w1×w2
         // with x = w1·p and y = w2·q.
         let x = p[i1];
         let y = q[i2];
-        let mut out = Solutions::NONE;
-        out.singularity_cos = x.abs().max(y.abs()).min(1.0);
+        let singularity_cos = x.abs().max(y.abs()).min(1.0);
         let z2 = 1.0 - x * x - y * y;
         // Rounding makes an exactly reachable boundary orientation slightly negative.
         if z2 < -1e-12 {
-            return out;
+            return Solutions {
+                singularity_cos,
+                ..Solutions::NONE
+            };
         }
         let zc = z2.max(0.0).sqrt();
         // What p, q and the common vector have across each axis is the same for both
@@ -388,48 +493,66 @@ impl Machine {
         {
             return self.inverse_general(axis);
         }
-        let mut common = [0.0; 3];
-        common[i1] = x;
-        common[i2] = y;
-        // The first solution's atan2 arguments and results, (y, x, angle) for α and β.
-        let mut first: Option<[(f64, f64, f64); 2]> = None;
-        for s in [1.0, -1.0] {
-            common[layout.third] = layout.normal * (s * zc);
-            // angle_about's atan2 arguments: (w·(f×t), f·t) with f and t across w.
-            let alpha = (
-                p[j1] * common[k1] - p[k1] * common[j1],
-                p[j1] * common[j1] + p[k1] * common[k1],
-            );
-            let beta = (
-                q[j2] * common[k2] - q[k2] * common[j2],
-                q[j2] * common[j2] + q[k2] * common[k2],
-            );
-            // With y = 0 the sign of the zero, which may differ, decides ±π.
-            if alpha.0 == 0.0 || beta.0 == 0.0 {
-                return self.inverse_general(axis);
-            }
-            let alpha = (alpha.0, alpha.1, atan2_again(alpha, first.map(|f| f[0])));
-            let beta = (beta.0, beta.1, atan2_again(beta, first.map(|f| f[1])));
-            first = Some([alpha, beta]);
-            let mut phys = [0.0; 2];
-            phys[layout.ia] = layout.sa * alpha.2;
-            phys[layout.ib] = layout.sb * beta.2;
-            out.push(Orientation {
-                angles: [self.joint(0, phys[0]), self.joint(1, phys[1])],
-                free: None,
-            });
-            if zc <= 0.0 {
-                break;
-            }
+        // p across w1 and q across w2, in cyclic order.
+        let f = ((p[j1], p[k1]), (q[j2], q[k2]));
+        let order = (j1 == i2, j2 == i1);
+        let (alpha, beta) = turn_args(f, (x, y), normal * zc, order);
+        // With y = 0 the sign of the zero, which may differ, decides ±π.
+        if alpha.0 == 0.0 || beta.0 == 0.0 {
+            return self.inverse_general(axis);
         }
-        out
+        let first = [Turn::of(alpha), Turn::of(beta)];
+        let (o1, t1) = self.orientation_of(layout, &first);
+        if zc <= 0.0 {
+            return Solutions {
+                found: [o1; 2],
+                trig: [t1; 2],
+                len: 1,
+                singularity_cos,
+            };
+        }
+        let (alpha, beta) = turn_args(f, (x, y), normal * -zc, order);
+        if alpha.0 == 0.0 || beta.0 == 0.0 {
+            return self.inverse_general(axis);
+        }
+        // The second solution's α and β usually follow from the first's.
+        let second = [first[0].again(alpha), first[1].again(beta)];
+        let (o2, t2) = self.orientation_of(layout, &second);
+        Solutions {
+            found: [o1, o2],
+            trig: [t1, t2],
+            len: 2,
+            singularity_cos,
+        }
+    }
+
+    /// The orientation of angles α and β of `layout`'s condition, with the sine and
+    /// cosine of both rotaries' physical angles.
+    #[inline(always)]
+    fn orientation_of(
+        &self,
+        layout: &InverseLayout,
+        [alpha, beta]: &[Turn; 2],
+    ) -> (Orientation, [(f64, f64); 2]) {
+        let mut phys = [0.0; 2];
+        let mut trig = [(0.0, 1.0); 2];
+        phys[layout.ia] = layout.sa * alpha.angle;
+        trig[layout.ia] = (layout.sa * alpha.sin, alpha.cos);
+        phys[layout.ib] = layout.sb * beta.angle;
+        trig[layout.ib] = (layout.sb * beta.sin, beta.cos);
+        let o = Orientation {
+            angles: [self.joint(0, phys[0]), self.joint(1, phys[1])],
+            free: None,
+        };
+        (o, trig)
     }
 
     /// [`Machine::inverse_with`] by vector algebra, for any rotation axes.
     fn inverse_general(&self, axis: Unit<Vector3<f64>>) -> Solutions {
         let mut out = Solutions::NONE;
         for o in self.inverse_vectors(axis) {
-            out.push(o);
+            // Rare (singular or zero-argument cases): the sine and cosine from the angles.
+            out.push(o, [0, 1].map(|i| self.physical(i, o.angles[i]).sin_cos()));
         }
         out.singularity_cos = self.singularity_cos(axis);
         out
@@ -560,27 +683,49 @@ mod tests {
         out
     }
 
-    /// Whether both lists hold the same orientations to the bit.
-    fn same_bits(a: &[Orientation], b: &[Orientation]) -> bool {
-        a.len() == b.len()
-            && a.iter().zip(b).all(|(x, y)| {
-                x.free == y.free
-                    && x.angles[0].to_bits() == y.angles[0].to_bits()
-                    && x.angles[1].to_bits() == y.angles[1].to_bits()
-            })
+    /// Whether joint values `a` and `b` (degrees) are the same angle within `tol`, a whole
+    /// turn apart allowed (a value near ±180 may wrap either way).
+    fn same_angle(a: f64, b: f64, tol: f64) -> bool {
+        let d = (a - b).rem_euclid(360.0);
+        d <= tol || 360.0 - d <= tol
     }
 
+    /// The written-out solution against the vector one: the first orientation to the bit,
+    /// the second one's angles to the bit or, where derived from the first by a half turn
+    /// or a mirror, within a few ulps; each sine and cosine that of the joint value's
+    /// physical angle within a few ulps.
     fn check_coordinate_solution(axis: Vector3<f64>) -> Result<(), TestCaseError> {
         let axis = Unit::new_normalize(axis);
         for m in machines() {
             let fast = m.inverse_with(&m.inverse_layout(), axis);
             let general = m.inverse_vectors(axis);
-            prop_assert!(
-                same_bits(fast.orientations(), &general),
-                "{}: {axis:?}: {:?} vs {general:?}",
-                m.name,
-                fast.orientations()
-            );
+            let found = fast.orientations();
+            let what = format!("{}: {axis:?}: {found:?} vs {general:?}", m.name);
+            prop_assert_eq!(found.len(), general.len(), "{}", what);
+            for (k, (a, b)) in found.iter().zip(&general).enumerate() {
+                prop_assert_eq!(a.free, b.free, "{}", what);
+                for i in 0..2 {
+                    let bits = a.angles[i].to_bits() == b.angles[i].to_bits();
+                    prop_assert!(
+                        bits || (k == 1 && same_angle(a.angles[i], b.angles[i], 1e-13)),
+                        "{}",
+                        what
+                    );
+                    let (s, c) = fast.sin_cos(k)[i];
+                    let (s0, c0) = m.physical(i, a.angles[i]).sin_cos();
+                    prop_assert!(
+                        (s - s0).abs() <= 2e-15 && (c - c0).abs() <= 2e-15,
+                        "{}: rotary {} of {}: ({}, {}) vs ({}, {})",
+                        what,
+                        i,
+                        k,
+                        s,
+                        c,
+                        s0,
+                        c0
+                    );
+                }
+            }
             prop_assert_eq!(
                 fast.singularity_cos.to_bits(),
                 m.singularity_cos(axis).to_bits()
@@ -617,7 +762,8 @@ mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(3000))]
 
-        /// The written-out solution is the vector one to the bit, zeros and all.
+        /// The written-out solution is the vector one (to the bit but for derived angles),
+        /// zeros and all.
         #[test]
         fn coordinate_solution_is_the_vector_one(
             x in -1.0f64..1.0, y in -1.0f64..1.0, z in -1.0f64..1.0,

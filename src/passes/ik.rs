@@ -8,8 +8,10 @@
 //! of the rest the one with the smallest largest rotary change from the previous joints
 //! wins (on a tie, the smaller sum of both changes), then the machine's preferred sign
 //! (first rotary with a preference), then the first. Without previous rotary values
-//! (program start, after homing) the preference decides. X, Y, Z follow from [`Machine::linear`], so FK(joints) reproduces the pose
-//! exactly outside the singularity cone.
+//! (program start, after homing) the preference decides. X, Y, Z follow from
+//! [`Machine::linear_with`], with the rotations built from the solution's sines and cosines
+//! ([`Machine::rotation_by`]; from the degrees for a held rotary), so FK(joints) reproduces
+//! the pose exactly outside the singularity cone.
 //!
 //! # Singularities
 //! Within `singularity_cone` degrees of an orientation where one rotary stops mattering
@@ -134,6 +136,10 @@ struct Choice {
     /// The path flips to the other solution: the rotaries the continuous solution would
     /// need (out of limits) and the largest change of the chosen one, degrees.
     flip: Option<([f64; 2], f64)>,
+    /// The sine and cosine of both rotaries' physical angles when they come from the
+    /// solution ([`crate::machine::Solutions::sin_cos`]; a whole turn keeps them); `None`
+    /// for a held rotary.
+    trig: Option<[(f64, f64); 2]>,
 }
 
 /// The `ik` pass.
@@ -319,15 +325,16 @@ impl Ik {
                         angles,
                         held: Some(k),
                         flip: None,
+                        trig: None,
                     });
                 }
             }
         }
-        // (angles, cost) of the best reachable orientation, and of the nearest one
-        // ignoring the limits.
-        let mut best: Option<([f64; 2], (f64, f64))> = None;
+        // (angles, cost, index) of the best reachable orientation, and (angles, cost) of
+        // the nearest one ignoring the limits.
+        let mut best: Option<([f64; 2], (f64, f64), usize)> = None;
         let mut nearest: Option<([f64; 2], (f64, f64))> = None;
-        for o in sols {
+        for (k, o) in sols.iter().enumerate() {
             let [(u0, l0), (u1, l1)] = [0, 1].map(|i| self.turns(i, o.angles[i], prev[i]));
             let unlimited = [u0, u1];
             let unlimited_cost = self.cost(unlimited, prev);
@@ -346,14 +353,14 @@ impl Ik {
             };
             let better = match best {
                 None => true,
-                Some((b, bc)) => Self::less(c, bc)
+                Some((b, bc, _)) => Self::less(c, bc)
                     .unwrap_or_else(|| self.preferred(angles) && !self.preferred(b)),
             };
             if better {
-                best = Some((angles, c));
+                best = Some((angles, c, k));
             }
         }
-        let (angles, cost) = best?;
+        let (angles, cost, k) = best?;
         let mut flip = None;
         if let Some((near, near_cost)) = nearest
             && cutting
@@ -367,6 +374,7 @@ impl Ik {
             angles,
             held: None,
             flip,
+            trig: Some(solutions.sin_cos(k)),
         })
     }
 
@@ -415,9 +423,24 @@ impl Ik {
     }
 
     /// The joint vector for the rotaries at `angles` with the tip on `tip`, carrying the
-    /// other known axes.
-    fn joints_at(&self, tip: &nalgebra::Point3<f64>, angles: [f64; 2]) -> Joints {
-        let xyz = self.machine.linear(tip, angles);
+    /// other known axes; `trig`, when known, is the sine and cosine of both rotaries'
+    /// physical angles (the rotations then need no sin_cos of the degrees).
+    fn joints_at(
+        &self,
+        tip: &nalgebra::Point3<f64>,
+        angles: [f64; 2],
+        trig: Option<[(f64, f64); 2]>,
+    ) -> Joints {
+        let xyz = match trig {
+            Some([(s0, c0), (s1, c1)]) => {
+                let rot = [
+                    self.machine.rotation_by(0, s0, c0),
+                    self.machine.rotation_by(1, s1, c1),
+                ];
+                self.machine.linear_with(tip, &rot)
+            }
+            None => self.machine.linear(tip, angles),
+        };
         let mut j = self.prev;
         j.set(Axis::X, xyz[0]);
         j.set(Axis::Y, xyz[1]);
@@ -443,11 +466,110 @@ impl Ik {
         ))
     }
 
-    /// Turns the pose motion `block` into joints; `false` when it is dropped (an error).
-    fn pose_motion(&mut self, block: &mut Block, pose: Pose, out: &mut Output<'_>) -> bool {
+    /// The rotary that swings by more than `singular_jump` as a cutting move leaves the
+    /// singularity with `choice`, and by how much (degrees): the `ik::singular-swing` case.
+    fn singular_swing(&self, choice: &Choice, cutting: bool) -> Option<(usize, f64)> {
+        if choice.held.is_some() || !cutting {
+            return None;
+        }
+        let k = self.held?;
+        let swing = (choice.angles[k] - self.prev.get(self.axes[k])?).abs();
+        (swing > self.options.singular_jump).then_some((k, swing))
+    }
+
+    /// The joints for `pose` with the rotaries at `choice`, carrying the pose's other axes.
+    fn target(&self, pose: &Pose, choice: &Choice) -> Joints {
+        let mut target = self.joints_at(&pose.tip, choice.angles, choice.trig);
+        let extra = pose.extra();
+        for a in extra.known.iter() {
+            if !AxisSet::XYZ.contains(a) && !self.axes.contains(&a) {
+                target.set(a, extra.values[a.index()]);
+            }
+        }
+        target
+    }
+
+    /// Makes pose motion `m` the joints of `choice` (which [`Ik::choose`] gave for its
+    /// pose) and takes them as the previous joints.
+    fn apply(&mut self, m: &mut Motion, choice: &Choice) {
+        let Target::Pose(pose) = &m.target else {
+            return;
+        };
+        let axis = pose.axis;
+        let target = self.target(pose, choice);
+        m.target = Target::Joints(target);
+        m.written = m.written.union(self.written());
+        self.held = choice.held;
+        self.prev = target;
+        self.last_axis = Some((choice.angles, axis));
+    }
+
+    /// Turns pose motion `block` into joints where it lies, when that is all it needs (a
+    /// straight move, reachable, no flip, nothing to report): the common case, without
+    /// moving the block through [`Pass::run`]. Other blocks only update what the pass
+    /// knows. `false`, with the pass unchanged, when only `run` can handle the block.
+    fn edit(&mut self, block: &mut Block) -> bool {
+        let BlockKind::Motion(m) = &mut block.kind else {
+            self.track(block);
+            return true;
+        };
+        let Target::Pose(pose) = &m.target else {
+            self.track(block);
+            return true;
+        };
+        let cutting = match m.kind {
+            MotionKind::Arc(_) => return false,
+            MotionKind::Rapid => false,
+            MotionKind::Linear => true,
+        };
+        let Some(choice) = self.choose(pose.axis, cutting) else {
+            return false;
+        };
+        if choice.flip.is_some() || self.singular_swing(&choice, cutting).is_some() {
+            return false;
+        }
+        self.apply(m, &choice);
+        true
+    }
+
+    /// What a block other than a pose motion tells the pass about the axes.
+    fn track(&mut self, block: &Block) {
+        match &block.kind {
+            BlockKind::Motion(m) => {
+                if let Target::Joints(j) = &m.target {
+                    self.prev = *j;
+                    if m.machine_frame {
+                        self.prev.forget(m.written);
+                    }
+                    // Joint moves from elsewhere end any hold at a singularity.
+                    self.held = None;
+                }
+            }
+            BlockKind::Command(c) => self.prev.forget(c.clobbers),
+            BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
+            BlockKind::Offset(o) if o.code == OffsetCode::Set => {
+                // G92 on an unknown axis makes it known (as the backend assumes).
+                for a in o.declared.known.iter() {
+                    if self.prev.get(a).is_none() {
+                        self.prev
+                            .set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// Turns the pose motion `block` into joints, with the diagnostics and extra blocks
+    /// it needs; `false` when it is dropped (an error).
+    fn pose_motion(&mut self, block: &mut Block, out: &mut Output<'_>) -> bool {
         let BlockKind::Motion(m) = &mut block.kind else {
             return false;
         };
+        let Target::Pose(pose) = &m.target else {
+            return false;
+        };
+        let pose_axis = pose.axis;
         if let MotionKind::Arc(_) = m.kind {
             out.diag(
                 Diagnostic::error(
@@ -460,8 +582,8 @@ impl Ik {
             return false;
         }
         let cutting = !matches!(m.kind, MotionKind::Rapid);
-        let Some(choice) = self.choose(pose.axis, cutting) else {
-            let a = pose.axis;
+        let Some(choice) = self.choose(pose_axis, cutting) else {
+            let a = pose_axis;
             let miss = match self.miss_angle(a) {
                 Some(d) => format!(", {d:.3} deg from the nearest orientation they reach"),
                 None => String::new(),
@@ -484,38 +606,21 @@ impl Ik {
             );
             return false;
         };
-        let prev = self.prev_angles();
-        if choice.held.is_none()
-            && let Some(k) = self.held
-            && let Some(pk) = prev[k]
-        {
-            let swing = (choice.angles[k] - pk).abs();
-            if cutting && swing > self.options.singular_jump {
-                out.diag(
-                    Diagnostic::warning(
-                        "ik::singular-swing",
-                        format!(
-                            "leaving the singular orientation, {} turns {swing:.3} deg in one cutting move",
-                            self.axes[k].letter()
-                        ),
-                    )
-                    .at_span(block.span)
-                    .with_help(
-                        "densify splits the move so the tip follows the programmed line, but the rotary swings while cutting; keep the tool axis further from the singular direction in the CAM to avoid it",
+        if let Some((k, swing)) = self.singular_swing(&choice, cutting) {
+            out.diag(
+                Diagnostic::warning(
+                    "ik::singular-swing",
+                    format!(
+                        "leaving the singular orientation, {} turns {swing:.3} deg in one cutting move",
+                        self.axes[k].letter()
                     ),
-                );
-            }
+                )
+                .at_span(block.span)
+                .with_help(
+                    "densify splits the move so the tip follows the programmed line, but the rotary swings while cutting; keep the tool axis further from the singular direction in the CAM to avoid it",
+                ),
+            );
         }
-        self.held = choice.held;
-
-        let mut target = self.joints_at(&pose.tip, choice.angles);
-        let extra = pose.extra();
-        for a in extra.known.iter() {
-            if !AxisSet::XYZ.contains(a) && !self.axes.contains(&a) {
-                target.set(a, extra.values[a.index()]);
-            }
-        }
-        let written = m.written.union(self.written());
 
         if let Some((continuous, jump)) = choice.flip {
             let out_of_range = (0..2)
@@ -536,9 +641,9 @@ impl Ik {
                     let d = self.options.retract_distance;
                     let from = self.machine.forward(&xyz0, angles0);
                     let up = from.tip + from.axis.into_inner() * d;
-                    let above = pose.tip + pose.axis.into_inner() * d;
-                    let retract = self.joints_at(&up, angles0);
-                    let turn = self.joints_at(&above, choice.angles);
+                    let above = pose.tip + pose_axis.into_inner() * d;
+                    let retract = self.joints_at(&up, angles0, None);
+                    let turn = self.joints_at(&above, choice.angles, choice.trig);
                     let step = |kind: MotionKind, target: Joints| {
                         Block::new(
                             block.span,
@@ -585,10 +690,7 @@ impl Ik {
             }
         }
 
-        m.target = Target::Joints(target);
-        m.written = written;
-        self.prev = target;
-        self.last_axis = Some((choice.angles, pose.axis));
+        self.apply(m, &choice);
         true
     }
 
@@ -612,38 +714,165 @@ impl Pass for Ik {
     }
 
     fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
-        match &block.kind {
-            BlockKind::Motion(m) => match &m.target {
-                Target::Pose(pose) => {
-                    let pose = pose.clone();
-                    // Borrowed, not moved: a block is a few hundred bytes.
-                    if self.pose_motion(&mut block, pose, out) {
-                        out.push(block);
-                    }
-                    return;
-                }
-                Target::Joints(j) => {
-                    self.prev = *j;
-                    if m.machine_frame {
-                        self.prev.forget(m.written);
-                    }
-                    // Joint moves from elsewhere end any hold at a singularity.
-                    self.held = None;
-                }
-            },
-            BlockKind::Command(c) => self.prev.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
-            BlockKind::Offset(o) if o.code == OffsetCode::Set => {
-                // G92 on an unknown axis makes it known (as the backend assumes).
-                for a in o.declared.known.iter() {
-                    if self.prev.get(a).is_none() {
-                        self.prev
-                            .set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
-                    }
-                }
+        if let BlockKind::Motion(m) = &block.kind
+            && let Target::Pose(_) = &m.target
+        {
+            // Borrowed, not moved: a block is a few hundred bytes.
+            if self.pose_motion(&mut block, out) {
+                out.push(block);
             }
-            _ => {}
+            return;
         }
+        self.track(&block);
         out.push(block);
+    }
+
+    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        // Nearly every block is a plain pose move: edited where it lies, not moved
+        // through `run` and out again.
+        super::edit_in_place(self, blocks, out, |pass, block, _| pass.edit(block));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ir::{Command, Feed, FeedMode, Span};
+    use nalgebra::Point3;
+    use proptest::prelude::*;
+
+    fn machine(name: &str) -> Machine {
+        let text = std::fs::read_to_string(format!("passes/{name}.toml")).unwrap();
+        crate::preset::Preset::from_toml(&text)
+            .unwrap()
+            .machine
+            .unwrap()
+    }
+
+    /// One block of a test program: 0 a rapid, 1 and 2 a linear move to a pose (tool
+    /// axis at `theta` from vertical, degrees, at azimuth `phi`), 3 a joint move, 4 a
+    /// homing command that clobbers everything.
+    fn block(line: u32, what: u8, tip: (f64, f64, f64), theta: f64, phi: f64) -> Block {
+        let span = Span {
+            offset: u64::from(line) * 10,
+            len: 5,
+            line,
+        };
+        let feed = Feed {
+            mode: FeedMode::PerMinute,
+            rate: Some(800.0),
+        };
+        let (st, ct) = theta.to_radians().sin_cos();
+        let (sp, cp) = phi.to_radians().sin_cos();
+        let axis = Unit::new_normalize(Vector3::new(st * cp, st * sp, ct));
+        let tip = Point3::new(tip.0, tip.1, tip.2);
+        let (kind, target) = match what {
+            0 => (MotionKind::Rapid, Target::Pose(Pose::new(tip, axis))),
+            1 | 2 => (MotionKind::Linear, Target::Pose(Pose::new(tip, axis))),
+            3 => {
+                let mut j = Joints::default();
+                for (a, v) in [
+                    (Axis::X, tip.x),
+                    (Axis::Y, tip.y),
+                    (Axis::Z, tip.z),
+                    (Axis::A, theta - 90.0),
+                    (Axis::B, theta - 90.0),
+                    (Axis::C, phi),
+                ] {
+                    j.set(a, v);
+                }
+                (MotionKind::Linear, Target::Joints(j))
+            }
+            _ => {
+                let c = Command {
+                    text: "G28".into(),
+                    modes: None,
+                    clobbers: AxisSet::ALL,
+                };
+                return Block::new(span, BlockKind::Command(c));
+            }
+        };
+        let written = match &target {
+            Target::Joints(j) => j.known,
+            _ => AxisSet::XYZ,
+        };
+        Block::new(
+            span,
+            BlockKind::Motion(Motion {
+                kind,
+                target,
+                feed,
+                written,
+                machine_frame: false,
+                extra: String::new(),
+            }),
+        )
+    }
+
+    /// Tilts that reach the singularity cone, the E-moc's A limits and beyond.
+    fn theta() -> impl Strategy<Value = f64> {
+        prop_oneof![
+            Just(0.0),
+            Just(0.004),
+            Just(180.0),
+            0.0f64..180.0,
+            80.0f64..100.0
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(300))]
+
+        /// Editing blocks in place (`run_batch`) gives what `run` gives block by block:
+        /// the same blocks, diagnostics and state, however the program is cut into
+        /// batches; holds, swings, unreachable poses, flips and retracts included.
+        #[test]
+        fn run_batch_is_run(
+            preset in 0usize..4,
+            retract in any::<bool>(),
+            steps in prop::collection::vec(
+                (0u8..5, (-50.0f64..50.0, -50.0f64..50.0, 0.0f64..50.0), theta(),
+                 prop_oneof![Just(0.0), Just(90.0), -180.0f64..180.0]),
+                1..40),
+            cuts in prop::collection::vec(1usize..8, 1..10),
+        ) {
+            let m = machine(["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"][preset]);
+            let options = Options {
+                on_flip: if retract { OnFlip::Retract } else { OnFlip::Error },
+                ..Options::default()
+            };
+            let program: Vec<Block> = steps
+                .iter()
+                .zip(1..)
+                .map(|(&(what, tip, theta, phi), line)| block(line, what, tip, theta, phi))
+                .collect();
+
+            let mut by_run = Ik::new(m.clone(), options.clone()).unwrap();
+            let (mut want, mut want_diags) = (Vec::new(), Vec::new());
+            for b in program.clone() {
+                by_run.run(b, &mut Output::new(&mut want, &mut want_diags));
+            }
+
+            let mut by_batch = Ik::new(m, options).unwrap();
+            let (mut got, mut got_diags) = (Vec::new(), Vec::new());
+            let mut rest = program;
+            for &n in cuts.iter().cycle() {
+                if rest.is_empty() {
+                    break;
+                }
+                let tail = rest.split_off(n.min(rest.len()));
+                let mut batch = std::mem::replace(&mut rest, tail);
+                // The pipeline hands each batch an empty output.
+                let mut out = Vec::new();
+                by_batch.run_batch(&mut batch, &mut Output::new(&mut out, &mut got_diags));
+                prop_assert!(batch.is_empty());
+                got.append(&mut out);
+            }
+            prop_assert_eq!(&got, &want);
+            prop_assert_eq!(&got_diags, &want_diags);
+            prop_assert_eq!(by_batch.prev, by_run.prev);
+            prop_assert_eq!(by_batch.held, by_run.held);
+            prop_assert_eq!(by_batch.last_axis, by_run.last_axis);
+        }
     }
 }
