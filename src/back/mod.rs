@@ -181,6 +181,10 @@ struct Modes {
 struct Line(Vec<u8>);
 
 impl Line {
+    fn push_byte(&mut self, b: u8) {
+        debug_assert!(b.is_ascii());
+        self.0.push(b);
+    }
     fn push(&mut self, c: char) {
         if c.is_ascii() {
             self.0.push(c as u8);
@@ -273,6 +277,9 @@ impl<W: Write> Emitter<W> {
     }
 
     /// `letter` is a word letter (an axis, `F`, `I`/`J`/`K`, `P`): always ASCII.
+    // Inlined: called for every word, and a call per word saved and restored the
+    // registers the number is built in.
+    #[inline(always)]
     fn word_units(&mut self, letter: char, units: i64, decimals: u8) {
         debug_assert!(letter.is_ascii(), "word letter {letter:?}");
         let mut digits = Digits::new(units, decimals, self.fmt.trim_zeros);
@@ -297,6 +304,19 @@ impl<W: Write> Emitter<W> {
     /// Ends the current line, adding line number and checksum when configured, then
     /// the comments.
     fn end_line(&mut self, comments: &[Comment], numbered: bool) -> Result<(), Diagnostic> {
+        // Most lines have no comment, number, checksum or length limit: those end with
+        // the newline alone, without the comment bookkeeping below.
+        if comments.is_empty()
+            && !(numbered && (self.fmt.line_numbers || self.fmt.checksums))
+            && !matches!(self.flavor, Flavor::Grbl(_))
+        {
+            if !self.line.is_empty() {
+                self.line.push_byte(b'\n');
+                self.out.write_all(self.line.as_bytes()).map_err(io_error)?;
+                self.line.clear();
+            }
+            return Ok(());
+        }
         let mut comments = comments;
         if self.fmt.comments == CommentOutput::Strip {
             comments = &[];
@@ -510,88 +530,108 @@ impl<W: Write> Emitter<W> {
             }
         };
         // Work out the axis words first: the mode line depends on whether E is printed.
-        let mut words: [Option<i64>; AXIS_COUNT] = [None; AXIS_COUNT];
-        let mut any = false;
+        // The words are `units[i]` for the axes in `named`: one pass over the known axes,
+        // and the printing and bookkeeping loops visit only the named ones.
+        let mut units = [0i64; AXIS_COUNT];
+        let mut named = AxisSet::EMPTY;
         let mut e_target = None;
         let mut e_absolute_once = false;
-        for a in target.known.iter() {
-            let v = target.values[a.index()];
-            // A machine-frame (G53) move names only its own axes.
-            if motion.machine_frame && !motion.written.contains(a) {
-                continue;
-            }
-            let d = self.axis_decimals[a.index()];
-            if a == Axis::E && self.fmt.extrusion == Extrusion::Relative && !motion.machine_frame {
-                let u = to_units(v, d).ok_or_else(|| too_large('E', v, block))?;
-                e_target = Some(u);
-                let base = match (self.e_units, self.pos.get(Axis::E)) {
-                    (Some(b), _) => Some(b),
-                    (None, Some(p)) => to_units(p, d),
-                    (None, None) => None,
-                };
-                match base {
-                    Some(base) if u != base => {
-                        words[a.index()] = Some(u - base);
-                        any = true;
-                    }
-                    Some(_) => {}
-                    // The controller's E is not known: this move says where E goes, in M82.
-                    None => {
-                        let prog = v + self.offsets[a.index()];
-                        words[a.index()] =
-                            Some(to_units(prog, d).ok_or_else(|| too_large('E', prog, block))?);
-                        e_absolute_once = true;
-                        any = true;
-                    }
-                }
-                continue;
-            }
-            let prog = if motion.machine_frame {
+        let machine_frame = motion.machine_frame;
+        let relative = self.fmt.extrusion == Extrusion::Relative;
+        // A machine-frame (G53) move names only its own axes.
+        let axes = if machine_frame {
+            target.known.intersection(motion.written)
+        } else {
+            target.known
+        };
+        // E is the last axis: taking it out of the loop and after it keeps the order in
+        // which a number that does not fit is reported.
+        let e_apart = relative && !machine_frame && axes.contains(Axis::E);
+        let plain = if e_apart {
+            axes.difference(AxisSet::from_iter([Axis::E]))
+        } else {
+            axes
+        };
+        for a in plain.iter() {
+            let i = a.index();
+            let v = target.values[i];
+            let prog = if machine_frame {
                 v
             } else {
-                v + self.offsets[a.index()]
+                v + self.offsets[i]
             };
-            let u = to_units(prog, d).ok_or_else(|| too_large(a.letter(), prog, block))?;
-            if self.printed[a.index()] != Some(u) || motion.machine_frame {
-                words[a.index()] = Some(u);
-                any = true;
+            let u = to_units(prog, self.axis_decimals[i])
+                .ok_or_else(|| too_large(a.letter(), prog, block))?;
+            if self.printed[i] != Some(u) || machine_frame {
+                units[i] = u;
+                named.insert(a);
             }
         }
+        if e_apart {
+            let i = Axis::E.index();
+            let v = target.values[i];
+            let d = self.axis_decimals[i];
+            let u = to_units(v, d).ok_or_else(|| too_large('E', v, block))?;
+            e_target = Some(u);
+            let base = match (self.e_units, self.pos.get(Axis::E)) {
+                (Some(b), _) => Some(b),
+                (None, Some(p)) => to_units(p, d),
+                (None, None) => None,
+            };
+            match base {
+                Some(base) if u != base => {
+                    units[i] = u - base;
+                    named.insert(Axis::E);
+                }
+                Some(_) => {}
+                // The controller's E is not known: this move says where E goes, in M82.
+                None => {
+                    let prog = v + self.offsets[i];
+                    units[i] = to_units(prog, d).ok_or_else(|| too_large('E', prog, block))?;
+                    e_absolute_once = true;
+                    named.insert(Axis::E);
+                }
+            }
+        }
+        let any = !named.is_empty();
         let is_arc = matches!(motion.kind, MotionKind::Arc(_));
         if let MotionKind::Arc(arc) = motion.kind {
             // An arc names its end point in the plane, even when it ends where it starts.
             let (u, v, _) = arc.plane.axes();
             for a in [u, v] {
-                if words[a.index()].is_none()
+                if !named.contains(a)
                     && let Some(val) = target.get(a)
                 {
                     let prog = val + self.offsets[a.index()];
-                    words[a.index()] = Some(
-                        to_units(prog, self.axis_decimals[a.index()])
-                            .ok_or_else(|| too_large(a.letter(), prog, block))?,
-                    );
+                    units[a.index()] = to_units(prog, self.axis_decimals[a.index()])
+                        .ok_or_else(|| too_large(a.letter(), prog, block))?;
+                    named.insert(a);
                 }
             }
         }
         if !any && !is_arc {
             // A move that changes nothing keeps the axes it named.
             for a in motion.written.iter() {
-                if a == Axis::E && self.fmt.extrusion == Extrusion::Relative {
-                    words[a.index()] = Some(0);
+                if a == Axis::E && relative {
+                    units[a.index()] = 0;
+                    named.insert(a);
                     continue;
                 }
                 if let Some(v) = target.get(a) {
                     let prog = v + self.offsets[a.index()];
-                    words[a.index()] = to_units(prog, self.axis_decimals[a.index()]);
+                    if let Some(u) = to_units(prog, self.axis_decimals[a.index()]) {
+                        units[a.index()] = u;
+                        named.insert(a);
+                    }
                 }
             }
         }
         if let Flavor::Grbl(_) = self.flavor {
-            grbl_motion_check(&words, motion, block)?;
+            grbl_motion_check(named, motion, block)?;
         }
-        let e_mode = words[Axis::E.index()].map(|_| {
-            self.fmt.extrusion == Extrusion::Relative && !e_absolute_once && !motion.machine_frame
-        });
+        let e_mode = named
+            .contains(Axis::E)
+            .then_some(relative && !e_absolute_once && !machine_frame);
         self.ensure_modes(motion, e_mode, block)?;
 
         let code = match motion.kind {
@@ -607,10 +647,9 @@ impl<W: Write> Emitter<W> {
             self.text(code);
         }
         self.modes.motion = Some(code);
-        for a in Axis::ALL {
-            if let Some(u) = words[a.index()] {
-                self.word_units(a.letter(), u, self.axis_decimals[a.index()]);
-            }
+        for a in named.iter() {
+            let i = a.index();
+            self.word_units(a.letter(), units[i], self.axis_decimals[i]);
         }
         if let MotionKind::Arc(arc) = motion.kind {
             let (u, v, _) = arc.plane.axes();
@@ -670,17 +709,16 @@ impl<W: Write> Emitter<W> {
         self.end_line(&block.comments, true)?;
 
         // Bookkeeping.
-        for a in Axis::ALL {
-            if a == Axis::E && self.fmt.extrusion == Extrusion::Relative {
-                // The printed numbers put E exactly here.
-                if e_target.is_some() {
-                    self.e_units = e_target;
-                }
-                continue;
+        let mut kept = named;
+        if relative {
+            // The printed numbers put E exactly here.
+            if e_target.is_some() {
+                self.e_units = e_target;
             }
-            if let Some(u) = words[a.index()] {
-                self.printed[a.index()] = Some(u);
-            }
+            kept = kept.difference(AxisSet::from_iter([Axis::E]));
+        }
+        for a in kept.iter() {
+            self.printed[a.index()] = Some(units[a.index()]);
         }
         self.pos = *target;
         if motion.machine_frame {
@@ -1080,14 +1118,10 @@ fn grbl_subprogram(block: &Block, text: &str) -> Diagnostic {
 }
 
 /// Grbl drives X, Y and Z only, and rejects `P` on an arc.
-fn grbl_motion_check(
-    words: &[Option<i64>; AXIS_COUNT],
-    motion: &Motion,
-    block: &Block,
-) -> Result<(), Diagnostic> {
-    let others: String = Axis::ALL
+fn grbl_motion_check(named: AxisSet, motion: &Motion, block: &Block) -> Result<(), Diagnostic> {
+    let others: String = named
+        .difference(AxisSet::XYZ)
         .iter()
-        .filter(|a| !matches!(a, Axis::X | Axis::Y | Axis::Z) && words[a.index()].is_some())
         .map(|a| a.letter())
         .collect();
     if !others.is_empty() {

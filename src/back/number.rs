@@ -91,22 +91,31 @@ impl Digits {
     // its 64 bytes through memory.
     #[inline(always)]
     pub(crate) fn new(units: i64, decimals: u8, trim: bool) -> Digits {
+        // One body per precision: the divisor and the number of fraction digits are
+        // constants there, so the fraction is straight-line code with no loop counter.
+        match decimals {
+            0 => Digits::fixed::<0>(units, trim),
+            1 => Digits::fixed::<1>(units, trim),
+            2 => Digits::fixed::<2>(units, trim),
+            3 => Digits::fixed::<3>(units, trim),
+            4 => Digits::fixed::<4>(units, trim),
+            5 => Digits::fixed::<5>(units, trim),
+            6 => Digits::fixed::<6>(units, trim),
+            7 => Digits::fixed::<7>(units, trim),
+            8 => Digits::fixed::<8>(units, trim),
+            _ => Digits::fixed::<9>(units, trim),
+        }
+    }
+
+    /// [`Digits::new`] at `FRAC` decimals (at most 9).
+    #[inline(always)]
+    fn fixed<const FRAC: usize>(units: i64, trim: bool) -> Digits {
         let u = units.unsigned_abs();
-        let frac = usize::from(decimals.min(9));
-        // Whole and fractional part by constant divisors (a multiplication each), not
-        // by a variable power of ten (a 64-bit `div`).
-        let (mut whole, fraction) = match frac {
-            0 => (u, 0),
-            1 => (u / 10, u % 10),
-            2 => (u / 100, u % 100),
-            3 => (u / 1_000, u % 1_000),
-            4 => (u / 10_000, u % 10_000),
-            5 => (u / 100_000, u % 100_000),
-            6 => (u / 1_000_000, u % 1_000_000),
-            7 => (u / 10_000_000, u % 10_000_000),
-            8 => (u / 100_000_000, u % 100_000_000),
-            _ => (u / 1_000_000_000, u % 1_000_000_000),
-        };
+        let frac = FRAC;
+        // Whole and fractional part by a constant divisor (a multiplication), not by a
+        // variable power of ten (a 64-bit `div`).
+        let p = 10u64.pow(FRAC as u32);
+        let (mut whole, fraction) = (u / p, u % p);
         let mut buf = [b'0'; 2 * DIGITS_END];
         let mut i = DIGITS_END;
         let mut end = DIGITS_END;
