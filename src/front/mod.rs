@@ -92,6 +92,34 @@ impl<R: BufRead> LineReader<R> {
         }))
     }
 
+    /// The input buffered after the lines read so far (empty at the end), with the byte
+    /// offset and the number of the line before it (0 at the start): for a reader that
+    /// can take whole lines from the buffer itself and then [`LineReader::skip_lines`]
+    /// them, without the search for each line's end.
+    pub fn buffered(&mut self) -> io::Result<(&[u8], (u64, u32))> {
+        if self.pending > 0 {
+            self.inner.consume(self.pending);
+            self.pending = 0;
+        }
+        loop {
+            match self.inner.fill_buf() {
+                Ok(_) => break,
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            }
+        }
+        // The buffer is filled: this second call reads nothing.
+        Ok((self.inner.fill_buf()?, (self.offset, self.line)))
+    }
+
+    /// Skips `bytes` bytes of [`LineReader::buffered`]: `lines` whole lines, each with its
+    /// `\n`, which the caller read.
+    pub fn skip_lines(&mut self, bytes: usize, lines: u32) {
+        self.pending = bytes;
+        self.offset += bytes as u64;
+        self.line += lines;
+    }
+
     /// [`LineReader::next_line`] before the UTF-8 check: the line's bytes, or `None` for
     /// a line over the limit. For a reader that can take some lines as bytes (all ASCII
     /// when it takes them) and check the others with [`decode`].

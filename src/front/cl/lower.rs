@@ -7,7 +7,7 @@ use nalgebra::{Point3, Unit, Vector3};
 use super::ast::{Arg, ArgKind, Statement as Syntax};
 use super::lexer::Tok;
 use super::source::{Probe, Statement};
-use super::{Options, Units, arc, cycle};
+use super::{Options, Units, arc, cycle, scan};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode, Motion, MotionKind,
@@ -493,26 +493,76 @@ impl Lowerer {
     /// MULTAX/OFF in force, without the grammar: most lines of a 5-axis file are this.
     /// Returns false for anything else, which then takes the full path (and gets its
     /// diagnostics there); both paths give the same block. It refuses blank lines, every
-    /// line with a `$` (a value list holds none) and every byte that is not ASCII, so the
-    /// source may offer it a line before checking it and building a statement of it.
+    /// line with a `$` (a value list holds none) and every byte that is not ASCII.
     pub(super) fn plain_goto(&mut self, code: &[u8], span: Span, out: &mut Vec<Block>) -> bool {
-        // Bytes, not chars: this runs on every line, and CL numbers are ASCII.
-        let code = code.trim_ascii();
-        let Some(head) = code.get(..5) else {
-            return false;
-        };
-        if !head.eq_ignore_ascii_case(b"GOTO/")
-            || self.circle.is_some()
-            || self.multax == Some(false)
-            || self.cycle.active().is_some()
-        {
+        if !self.plain_gotos_allowed() {
             return false;
         }
-        let rest = &code[5..];
         let mut v = [0.0f64; 6];
-        let Some(n) = scan_values(rest, &mut v) else {
-            return false;
-        };
+        match scan::goto::<false>(code, &mut v) {
+            Some((n, _)) => self.goto_values(&v, n, span, out),
+            None => false,
+        }
+    }
+
+    /// [`Lowerer::plain_goto`] on the lines at the start of buffered input: `chunk` holds
+    /// whole lines, each ended by `\n`, then whatever follows; the first starts at byte
+    /// `offset` of the input and is line `line + 1`. Lowers lines until one is not a plain
+    /// `GOTO/` (or is over the line limit, or is not whole in `chunk`) or `out` holds
+    /// `want` blocks; returns the bytes and the lines taken. Reading the lines from the
+    /// buffer saves finding each line's end first: the reader finds it.
+    pub(super) fn plain_gotos(
+        &mut self,
+        chunk: &[u8],
+        (offset, line): (u64, u32),
+        out: &mut Vec<Block>,
+        want: usize,
+    ) -> (usize, u32) {
+        let mut taken = 0;
+        let mut lines = 0u32;
+        if !self.plain_gotos_allowed() {
+            return (0, 0);
+        }
+        while out.len() < want {
+            let Some(rest) = chunk.get(taken..) else {
+                break;
+            };
+            let mut v = [0.0f64; 6];
+            let Some((n, newline)) = scan::goto::<true>(rest, &mut v) else {
+                break;
+            };
+            // As the line reader counts it: without the `\n` and a `\r` before it.
+            let content = if newline > 0 && rest.get(newline - 1) == Some(&b'\r') {
+                newline - 1
+            } else {
+                newline
+            };
+            if content > self.options.max_line_len {
+                break;
+            }
+            let span = Span {
+                offset: offset + taken as u64,
+                len: content as u32,
+                line: line + lines + 1,
+            };
+            if !self.goto_values(&v, n, span, out) {
+                break;
+            }
+            taken += newline + 1;
+            lines += 1;
+        }
+        (taken, lines)
+    }
+
+    /// No arc, cycle or MULTAX/OFF is in force: a plain `GOTO/` is a move to its point.
+    fn plain_gotos_allowed(&self) -> bool {
+        self.circle.is_none() && self.multax != Some(false) && self.cycle.active().is_none()
+    }
+
+    /// The block of a plain `GOTO/` with the `n` values `v`; false (and nothing changed)
+    /// when the grammar path must read it: a wrong count, a zero axis, a point out of range.
+    #[inline(always)]
+    fn goto_values(&mut self, v: &[f64; 6], n: usize, span: Span, out: &mut Vec<Block>) -> bool {
         let axis = match n {
             3 => self.axis,
             6 => match unit(Vector3::new(v[3], v[4], v[5])) {
@@ -1478,31 +1528,6 @@ enum Point {
     Start,
     /// `GODLTA`: by the offset.
     Delta,
-}
-
-/// The values of a plain `GOTO/` argument list (`x,y,z[,i,j,k]`, plain decimals, spaces
-/// around them) into `v`, read in one pass; their count, or `None` for anything else (an
-/// exponent, `inf`, a seventh value), which the grammar then reads and reports.
-fn scan_values(b: &[u8], v: &mut [f64; 6]) -> Option<usize> {
-    let skip = |mut at: usize| {
-        while b.get(at).is_some_and(u8::is_ascii_whitespace) {
-            at += 1;
-        }
-        at
-    };
-    let mut n = 0;
-    let mut at = 0;
-    loop {
-        let (x, end) = crate::front::gcode::scan_decimal_wide(b, skip(at))?;
-        *v.get_mut(n)? = x;
-        n += 1;
-        at = skip(end);
-        match b.get(at) {
-            None => return Some(n),
-            Some(b',') => at += 1,
-            Some(_) => return None,
-        }
-    }
 }
 
 fn unused_circle(stmt: &Statement, major: &str) -> Diagnostic {

@@ -82,6 +82,7 @@ pub mod lexer;
 mod arc;
 mod cycle;
 mod lower;
+mod scan;
 mod source;
 
 use std::io::BufRead;
@@ -207,7 +208,7 @@ impl<R: BufRead> Parser<R> {
             }
             let join = !self.lower.is_triplet();
             let lower = &mut self.lower;
-            let mut quick = |bytes: &[u8], span| lower.plain_goto(bytes, span, out);
+            let mut quick = |chunk: &[u8], at| lower.plain_gotos(chunk, at, out, want);
             match self
                 .source
                 .next_statement(&mut self.stmt, join, diags, &mut quick)

@@ -2299,14 +2299,14 @@ fn read_digits_wide(b: &[u8], mut at: usize, mantissa: &mut u64) -> usize {
 /// The number written by eight digit values (0..=9), one per byte, the first (lowest)
 /// byte the leading digit: pairs, then fours, then all eight, a multiplication each.
 #[inline(always)]
-fn eight_digits(v: u64) -> u64 {
+pub(crate) fn eight_digits(v: u64) -> u64 {
     let v = (v.wrapping_mul(10 * 256 + 1) >> 8) & 0x00ff_00ff_00ff_00ff;
     let v = (v.wrapping_mul(100 * 65_536 + 1) >> 16) & 0x0000_ffff_0000_ffff;
     v.wrapping_mul(10_000 * (1 << 32) + 1) >> 32
 }
 
 /// `10^n` for the digits [`read_digits_wide`] reads at once.
-const POW10_INT: [u64; 9] = [
+pub(crate) const POW10_INT: [u64; 9] = [
     1,
     10,
     100,
@@ -2320,7 +2320,7 @@ const POW10_INT: [u64; 9] = [
 
 /// `±mantissa / 10^frac` for a mantissa of at most 15 digits: both are exact in f64, so
 /// the one division rounds correctly (Clinger's fast path), as `str::parse` does.
-fn exact_decimal(mantissa: u64, frac: usize, negative: bool) -> f64 {
+pub(crate) fn exact_decimal(mantissa: u64, frac: usize, negative: bool) -> f64 {
     let value = mantissa as f64 / POW10[frac];
     if negative { -value } else { value }
 }

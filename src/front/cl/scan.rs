@@ -1,0 +1,187 @@
+//! The one-pass reader of plain `GOTO/x,y,z[,i,j,k]` lines, most of the lines of a
+//! 5-axis CL file. It reads what [`crate::front::gcode::scan_decimal_wide`] reads, with
+//! the same values (the proptests of the CL frontend hold it to the grammar).
+
+use crate::front::gcode::{POW10_INT, eight_digits, exact_decimal, scan_decimal_wide};
+
+/// `b'0'` in every byte: XOR turns digits into 0..=9.
+const ZEROS: u64 = 0x3030_3030_3030_3030;
+
+/// The high bit of each byte of `v` (bytes already XORed with [`ZEROS`]) that is not a
+/// digit. A byte of 0x8a or more carries into the next one, which can only spoil bytes
+/// after the first non-digit.
+#[inline(always)]
+fn not_digit(v: u64) -> u64 {
+    (v.wrapping_add(0x7676_7676_7676_7676) | v) & 0x8080_8080_8080_8080
+}
+
+/// A blank between values. With `CHUNK` the line ends at `\n`, which is not a blank.
+#[inline(always)]
+fn blank<const CHUNK: bool>(c: u8) -> bool {
+    c.is_ascii_whitespace() && !(CHUNK && c == b'\n')
+}
+
+/// The decimal at `b[at..]` and where it ends, as [`scan_decimal_wide`] reads it.
+///
+/// CL values are `[-]d.ddd` with one to seven whole digits and at most fourteen digits in
+/// all; when sixteen bytes follow the sign such a value is read with three loads and no
+/// loop: the bytes after the point are shifted over it, so the digits form one run of at
+/// most fifteen, converted eight at a time. Anything else goes to the general reader.
+#[inline(always)]
+fn decimal(b: &[u8], at: usize) -> Option<(f64, usize)> {
+    let negative = b.get(at) == Some(&b'-');
+    let start = at + usize::from(negative);
+    if let Some(w) = b.get(start..).and_then(<[u8]>::first_chunk::<16>) {
+        let x = u128::from_le_bytes(*w);
+        let lo = x as u64 ^ ZEROS;
+        let hi = (x >> 64) as u64 ^ ZEROS;
+        // Whole digits (8 when all eight bytes are digits).
+        let whole = (not_digit(lo).trailing_zeros() / 8) as usize;
+        if (1..8).contains(&whole) && w[whole] == b'.' {
+            // The digits before the point stay, the bytes after it move down one; the top
+            // byte, now empty, is marked as no digit so the run ends within the sixteen.
+            let keep = (1u64 << (8 * whole)) - 1;
+            let digits_lo = (lo & keep) | (((lo >> 8) | (hi << 56)) & !keep);
+            let digits_hi = (hi >> 8) | 0xff00_0000_0000_0000;
+            let end_lo = not_digit(digits_lo);
+            let (mantissa, count) = if end_lo != 0 {
+                let n = (end_lo.trailing_zeros() / 8) as usize;
+                (eight_digits(digits_lo << (64 - 8 * n)), n)
+            } else {
+                let m = (not_digit(digits_hi).trailing_zeros() / 8) as usize;
+                let high = eight_digits(digits_lo);
+                if m == 0 {
+                    (high, 8)
+                } else {
+                    let low = eight_digits(digits_hi << (64 - 8 * m));
+                    (high * POW10_INT[m] + low, 8 + m)
+                }
+            };
+            // Fifteen digits may go on past the sixteen bytes: the general reader counts them.
+            if count < 15 {
+                let value = exact_decimal(mantissa, count - whole, negative);
+                return Some((value, start + count + 1));
+            }
+        }
+    }
+    scan_decimal_wide(b, at)
+}
+
+/// Reads a plain `GOTO/` line at the start of `b` (blanks around the values, plain
+/// decimals, no exponent) into `v`: the count of values and where the line ends. `None`
+/// for anything else, and for a seventh value.
+///
+/// Without `CHUNK` the line is all of `b` (a line's bytes, a statement's code); with it
+/// `b` is buffered input and the line ends at the first `\n`, which must be there (its
+/// index is returned). Reading sixteen bytes at a time past the values of a line is the
+/// point of the chunk: only the last line of a buffer has no bytes after it.
+#[inline(always)]
+pub(super) fn goto<const CHUNK: bool>(b: &[u8], v: &mut [f64; 6]) -> Option<(usize, usize)> {
+    let mut at = 0;
+    while b.get(at).is_some_and(|&c| blank::<CHUNK>(c)) {
+        at += 1;
+    }
+    let head = b.get(at..)?.first_chunk::<5>()?;
+    // Case folding by `| 0x20` is exact here: only `G`/`g` give `g`, and so on.
+    let word = u32::from_le_bytes([head[0], head[1], head[2], head[3]]) | 0x2020_2020;
+    if word != u32::from_le_bytes(*b"goto") || head[4] != b'/' {
+        return None;
+    }
+    at += 5;
+    let mut n = 0;
+    loop {
+        while b.get(at).is_some_and(|&c| blank::<CHUNK>(c)) {
+            at += 1;
+        }
+        let (x, end) = decimal(b, at)?;
+        *v.get_mut(n)? = x;
+        n += 1;
+        at = end;
+        if b.get(at) == Some(&b',') {
+            at += 1;
+            continue;
+        }
+        while b.get(at).is_some_and(|&c| blank::<CHUNK>(c)) {
+            at += 1;
+        }
+        match b.get(at) {
+            Some(b',') => at += 1,
+            Some(b'\n') if CHUNK => return Some((n, at)),
+            None if !CHUNK => return Some((n, at)),
+            _ => return None,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every way a value may be spelled around the sixteen-byte window reads as the general
+    /// reader reads it: same value (bits), same end.
+    #[test]
+    fn decimals_read_as_the_general_reader_does() {
+        let bodies = [
+            "0",
+            "1",
+            "12",
+            "1234567",
+            "12345678",
+            ".5",
+            "5.",
+            "0.5",
+            "1.25",
+            "40.060853",
+            "0.539410836",
+            "0.002347031",
+            "1234567.1234567",
+            "123456.12345678",
+            "1.23456789012345",
+            "1.234567890123456",
+            "12.3456789012345",
+            "1.5.2",
+            "1.5e3",
+            "7.-",
+            "9999999.9999999",
+        ];
+        let tails = [
+            "",
+            ",",
+            ",1.5",
+            "\n",
+            "\r\nGOTO/1",
+            " ,",
+            "12345678901234567",
+        ];
+        for body in bodies {
+            for sign in ["", "-", "+"] {
+                for tail in tails {
+                    for pad in 0..20 {
+                        let text = format!("{sign}{body}{tail}{}", ",".repeat(pad));
+                        let b = text.as_bytes();
+                        let got = decimal(b, 0).map(|(v, e)| (v.to_bits(), e));
+                        let want = scan_decimal_wide(b, 0).map(|(v, e)| (v.to_bits(), e));
+                        assert_eq!(got, want, "{text:?}");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn lines_end_at_the_newline_in_a_chunk() {
+        let mut v = [0.0; 6];
+        let b = b"  GOTO/1.5, 2.5 ,-3.25\r\nGOTO/4,5,6\n";
+        assert_eq!(goto::<true>(b, &mut v), Some((3, 23)));
+        assert_eq!(v[..3], [1.5, 2.5, -3.25]);
+        assert_eq!(goto::<false>(&b[..22], &mut v), Some((3, 22)));
+        assert_eq!(goto::<false>(&b[..23], &mut v), Some((3, 23)));
+        // No newline: the line may go on in the next chunk.
+        assert_eq!(goto::<true>(&b[..23], &mut v), None);
+        assert_eq!(goto::<true>(b"goto/1,2,3,4,5,6,7\n", &mut v), None);
+        assert_eq!(goto::<true>(b"GOTO/1,2,3,\n", &mut v), None);
+        assert_eq!(goto::<true>(b"GOTO/1,2,3 $\n", &mut v), None);
+        assert_eq!(goto::<true>(b"GOTO 1,2,3\n", &mut v), None);
+        assert_eq!(goto::<true>(b"GOTO/1,2,3\n", &mut v), Some((3, 10)));
+    }
+}
