@@ -326,8 +326,7 @@ impl Machine {
         let (table, nt) = self.chain(Mount::Table);
         let (head, nh) = self.chain(Mount::Head);
         let (table, head) = (&table[..nt], &head[..nh]);
-        let tip_machine = Vector3::from(*xyz) + self.chain_point(head, &rot, Vector3::zeros());
-        let tip = self.chain_point_inverse(table, &rot, tip_machine);
+        let tip = self.tip_by_chains(xyz, &rot, table, head);
         let axis_machine = self.chain_rotation(head, &rot) * Vector3::z();
         let axis = self.chain_rotation(table, &rot).inverse() * axis_machine;
         ToolPose {
@@ -336,6 +335,37 @@ impl Machine {
             // the invariant holds exactly enough for long chains of computation.
             axis: Unit::new_normalize(axis),
         }
+    }
+
+    /// The tool tip of [`Machine::forward_with`] alone, to the bit, for a caller that
+    /// does not need the tool axis (its product and normalisation are left out).
+    pub fn tip_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> Point3<f64> {
+        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
+            // forward_with's table-table tip, the same operations.
+            let (c0, c1) = (
+                Vector3::from(self.rotary[0].pivot),
+                Vector3::from(self.rotary[1].pivot),
+            );
+            let (r0, r1) = (rot[0].matrix(), rot[1].matrix());
+            let q = r0.tr_mul(&(Vector3::from(*xyz) - c0)) + c0 - c1;
+            return Point3::from(r1.tr_mul(&q) + c1);
+        }
+        let (table, nt) = self.chain(Mount::Table);
+        let (head, nh) = self.chain(Mount::Head);
+        Point3::from(self.tip_by_chains(xyz, rot, &table[..nt], &head[..nh]))
+    }
+
+    /// The tool tip (part frame) of linear positions `xyz` by the `table` and `head`
+    /// chains, for any layout.
+    fn tip_by_chains(
+        &self,
+        xyz: &[f64; 3],
+        rot: &[Rotation3<f64>; 2],
+        table: &[usize],
+        head: &[usize],
+    ) -> Vector3<f64> {
+        let tip_machine = Vector3::from(*xyz) + self.chain_point(head, rot, Vector3::zeros());
+        self.chain_point_inverse(table, rot, tip_machine)
     }
 
     /// The linear positions (X, Y, Z, mm) that put the tool tip on `tip` (part frame) with
@@ -796,6 +826,31 @@ mod tests {
                 let angles = [v[3], c];
                 let chains = m.linear_by_chains(&tip, &m.rotations(angles));
                 prop_assert_eq!(m.linear(&tip, angles).map(f64::to_bits), chains.map(f64::to_bits));
+            }
+        }
+
+        /// The tip alone is forward kinematics' tip to the bit, every layout.
+        #[test]
+        fn tip_is_the_forward_tip(
+            x in -300.0f64..300.0, y in -300.0f64..300.0, z in -300.0f64..300.0,
+            a in -720.0f64..720.0, c in -720.0f64..720.0, zeroed in 0usize..32,
+        ) {
+            let mut v = [x, y, z, a, c];
+            for (i, w) in v.iter_mut().enumerate() {
+                if zeroed & (1 << i) != 0 {
+                    *w = 0.0;
+                }
+            }
+            let xyz = [v[0], v[1], v[2]];
+            for m in machines() {
+                let rot = m.rotations([v[3], v[4]]);
+                let tip = m.tip_with(&xyz, &rot);
+                let want = m.forward_with(&xyz, &rot).tip;
+                prop_assert_eq!(
+                    tip.coords.map(f64::to_bits),
+                    want.coords.map(f64::to_bits),
+                    "{}: {:?}", m.name, v
+                );
             }
         }
 
