@@ -62,6 +62,28 @@ pub struct InverseLayout {
     axis_is_p: bool,
 }
 
+/// Which rotary α and β of an [`InverseLayout`]'s condition are, and the signs of their
+/// angles, for [`Machine::inverse_with`] (constants for the built-in layouts).
+#[derive(Debug, Clone, Copy)]
+struct Pair {
+    ia: usize,
+    sa: f64,
+    ib: usize,
+    sb: f64,
+}
+
+impl Pair {
+    #[inline(always)]
+    fn of(layout: &InverseLayout) -> Pair {
+        Pair {
+            ia: layout.ia,
+            sa: layout.sa,
+            ib: layout.ib,
+            sb: layout.sb,
+        }
+    }
+}
+
 /// The orientations [`Machine::inverse_with`] found: those of [`Machine::inverse`], in its
 /// order, with [`Machine::singularity_cos`] of the same axis and the sine and cosine of
 /// each orientation's physical rotary angles.
@@ -376,6 +398,9 @@ impl Machine {
 
     /// [`Machine::linear`] with the rotaries' rotations from [`Machine::rotations`] (or
     /// [`Machine::rotation_by`]).
+    // Inlined: ik builds the rotations for every block just to call this, and a call
+    // needs them stored and loaded again.
+    #[inline(always)]
     pub fn linear_with(&self, tip: &Point3<f64>, rot: &[Rotation3<f64>; 2]) -> [f64; 3] {
         if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
             // The common table-table case written out (ik runs it for every block): the
@@ -467,14 +492,26 @@ impl Machine {
     /// the `atan2` arguments.
     pub fn inverse_with(&self, layout: &InverseLayout, axis: Unit<Vector3<f64>>) -> Solutions {
         let (i1, i2, axis_is_p) = (layout.w1, layout.w2, layout.axis_is_p);
-        // The built-in machines' layouts get copies with the coordinate indices constant
-        // (every product picks components by them: no index loads, no bounds checks);
-        // the same code runs with them variable for any other.
-        match (i1, i2, axis_is_p) {
-            (2, 0, true) => self.inverse_coordinates(layout, axis, 2, 0, true),
-            (2, 1, true) => self.inverse_coordinates(layout, axis, 2, 1, true),
-            (1, 0, false) => self.inverse_coordinates(layout, axis, 1, 0, false),
-            _ => self.inverse_coordinates(layout, axis, i1, i2, axis_is_p),
+        // The built-in machines' layouts get copies with the coordinate indices, the
+        // rotaries of α and β and their signs constant (every product picks components by
+        // them, the angles go to fixed places: no index loads, no bounds checks, nothing
+        // kept in memory); the same code runs with them variable for any other.
+        // α the second rotary's angle, β the first's negated: both table-table and
+        // head-head layouts.
+        let carried_first = (layout.ia, layout.ib) == (1, 0)
+            && layout.sa.to_bits() == 1f64.to_bits()
+            && layout.sb.to_bits() == (-1f64).to_bits();
+        let pair = Pair {
+            ia: 1,
+            sa: 1.0,
+            ib: 0,
+            sb: -1.0,
+        };
+        match (i1, i2, axis_is_p, carried_first) {
+            (2, 0, true, true) => self.inverse_coordinates(axis, 2, 0, true, pair),
+            (2, 1, true, true) => self.inverse_coordinates(axis, 2, 1, true, pair),
+            (1, 0, false, true) => self.inverse_coordinates(axis, 1, 0, false, pair),
+            _ => self.inverse_coordinates(axis, i1, i2, axis_is_p, Pair::of(layout)),
         }
     }
 
@@ -483,11 +520,11 @@ impl Machine {
     #[inline(always)]
     fn inverse_coordinates(
         &self,
-        layout: &InverseLayout,
         axis: Unit<Vector3<f64>>,
         i1: usize,
         i2: usize,
         axis_is_p: bool,
+        pair: Pair,
     ) -> Solutions {
         let t = [axis.x, axis.y, axis.z];
         // Bounded components keep every product finite, as the left-out ones were
@@ -532,7 +569,7 @@ impl Machine {
             return self.inverse_general(axis);
         }
         let first = [Turn::of(alpha), Turn::of(beta)];
-        let (o1, t1) = self.orientation_of(layout, &first);
+        let (o1, t1) = self.orientation_of(pair, &first);
         if zc <= 0.0 {
             return Solutions {
                 found: [o1; 2],
@@ -547,7 +584,7 @@ impl Machine {
         }
         // The second solution's α and β usually follow from the first's.
         let second = [first[0].again(alpha), first[1].again(beta)];
-        let (o2, t2) = self.orientation_of(layout, &second);
+        let (o2, t2) = self.orientation_of(pair, &second);
         Solutions {
             found: [o1, o2],
             trig: [t1, t2],
@@ -556,20 +593,20 @@ impl Machine {
         }
     }
 
-    /// The orientation of angles α and β of `layout`'s condition, with the sine and
-    /// cosine of both rotaries' physical angles.
+    /// The orientation of angles α and β of a layout's condition (`pair` says whose they
+    /// are), with the sine and cosine of both rotaries' physical angles.
     #[inline(always)]
     fn orientation_of(
         &self,
-        layout: &InverseLayout,
+        pair: Pair,
         [alpha, beta]: &[Turn; 2],
     ) -> (Orientation, [(f64, f64); 2]) {
         let mut phys = [0.0; 2];
         let mut trig = [(0.0, 1.0); 2];
-        phys[layout.ia] = layout.sa * alpha.angle;
-        trig[layout.ia] = (layout.sa * alpha.sin, alpha.cos);
-        phys[layout.ib] = layout.sb * beta.angle;
-        trig[layout.ib] = (layout.sb * beta.sin, beta.cos);
+        phys[pair.ia] = pair.sa * alpha.angle;
+        trig[pair.ia] = (pair.sa * alpha.sin, alpha.cos);
+        phys[pair.ib] = pair.sb * beta.angle;
+        trig[pair.ib] = (pair.sb * beta.sin, beta.cos);
         let o = Orientation {
             angles: [self.joint(0, phys[0]), self.joint(1, phys[1])],
             free: None,
