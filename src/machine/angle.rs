@@ -3,12 +3,16 @@
 //!
 //! The x86-64 baseline has no rounding instruction (`roundsd` is SSE4.1), so `f64::round`,
 //! `floor` and `ceil` are library calls; every CL point of a 5-axis program rounds
-//! several angles. The versions here truncate through an integer instead, exactly: the
-//! same value and sign as the standard functions (checked against them in the tests).
+//! several angles. The versions here round by adding and taking off 2^52 instead,
+//! exactly: the same value and sign as the standard functions (checked against them in
+//! the tests).
 
-/// Below this magnitude a float's truncation fits an `i64` and the fraction left over is
-/// exact; above it (and for NaN) the standard function is used.
+/// Below this magnitude (under 2^52) [`nearest`] is exact; above it (and for NaN) the
+/// standard function is used.
 const EXACT: f64 = 4.5e15;
+
+/// 2^52: from here to 2^53 the floats are the whole numbers.
+const TWO_52: f64 = 4_503_599_627_370_496.0;
 
 /// Whether `x` is below [`EXACT`] in magnitude (not NaN).
 #[inline(always)]
@@ -16,10 +20,13 @@ fn exact(x: f64) -> bool {
     x.abs() < EXACT
 }
 
-/// [`f64::trunc`], exactly, with the sign of `x` kept on zero.
+/// The whole number nearest `x` (ties to even), with the sign of `x` kept on zero, for
+/// `|x|` below [`EXACT`]. A sum in `[2^52, 2^53)` is rounded to a whole number (ties to
+/// even, and 2^52 is even), and taking 2^52 off again is exact. Cheaper than a
+/// truncation through `i64`, whose saturating conversion needs range and NaN tests.
 #[inline(always)]
-fn trunc(x: f64) -> f64 {
-    (x as i64 as f64).copysign(x)
+fn nearest(x: f64) -> f64 {
+    ((x.abs() + TWO_52) - TWO_52).copysign(x)
 }
 
 /// [`f64::round`] (half away from zero), exactly.
@@ -35,15 +42,11 @@ pub fn round(x: f64) -> f64 {
     if !exact(x) {
         return x.round();
     }
-    let t = trunc(x);
-    let f = x - t;
-    let r = if f >= 0.5 {
-        t + 1.0
-    } else if f <= -0.5 {
-        t - 1.0
-    } else {
-        t
-    };
+    let a = x.abs();
+    let r = (a + TWO_52) - TWO_52;
+    // A tie went down to even: away from zero instead. `a - r` is exact (`r` is 0, or
+    // within a factor of two of `a`), and only a tie taken down leaves 0.5.
+    let r = if a - r == 0.5 { r + 1.0 } else { r };
     r.copysign(x)
 }
 
@@ -59,8 +62,9 @@ pub fn floor(x: f64) -> f64 {
     if !exact(x) {
         return x.floor();
     }
-    let t = trunc(x);
-    (if t > x { t - 1.0 } else { t }).copysign(x)
+    // Within half a unit of `x`: one below it when above.
+    let r = nearest(x);
+    (if r > x { r - 1.0 } else { r }).copysign(x)
 }
 
 /// [`f64::ceil`], exactly.
@@ -76,8 +80,8 @@ pub fn ceil(x: f64) -> f64 {
     if !exact(x) {
         return x.ceil();
     }
-    let t = trunc(x);
-    (if t < x { t + 1.0 } else { t }).copysign(x)
+    let r = nearest(x);
+    (if r < x { r + 1.0 } else { r }).copysign(x)
 }
 
 /// The angle `v + 360 k` nearest `target` (degrees).
@@ -198,6 +202,16 @@ mod tests {
             f64::NAN,
             f64::MIN_POSITIVE,
             -f64::MIN_POSITIVE,
+            // Ties and near-ties below EXACT, where the 2^52 sum decides.
+            2.5,
+            -3.5,
+            0.5000000000000001,
+            -0.5000000000000001,
+            2251799813685248.5,
+            -2251799813685247.5,
+            4499999999999999.5,
+            -4499999999999998.5,
+            4499999999999999.0,
         ] {
             assert!(same(round(x), x.round()), "round {x}");
             assert!(same(floor(x), x.floor()), "floor {x}");

@@ -62,6 +62,28 @@ pub struct InverseLayout {
     axis_is_p: bool,
 }
 
+/// Which rotary α and β of an [`InverseLayout`]'s condition are, and the signs of their
+/// angles, for [`Machine::inverse_with`] (constants for the built-in layouts).
+#[derive(Debug, Clone, Copy)]
+struct Pair {
+    ia: usize,
+    sa: f64,
+    ib: usize,
+    sb: f64,
+}
+
+impl Pair {
+    #[inline(always)]
+    fn of(layout: &InverseLayout) -> Pair {
+        Pair {
+            ia: layout.ia,
+            sa: layout.sa,
+            ib: layout.ib,
+            sb: layout.sb,
+        }
+    }
+}
+
 /// The orientations [`Machine::inverse_with`] found: those of [`Machine::inverse`], in its
 /// order, with [`Machine::singularity_cos`] of the same axis and the sine and cosine of
 /// each orientation's physical rotary angles.
@@ -326,8 +348,7 @@ impl Machine {
         let (table, nt) = self.chain(Mount::Table);
         let (head, nh) = self.chain(Mount::Head);
         let (table, head) = (&table[..nt], &head[..nh]);
-        let tip_machine = Vector3::from(*xyz) + self.chain_point(head, &rot, Vector3::zeros());
-        let tip = self.chain_point_inverse(table, &rot, tip_machine);
+        let tip = self.tip_by_chains(xyz, &rot, table, head);
         let axis_machine = self.chain_rotation(head, &rot) * Vector3::z();
         let axis = self.chain_rotation(table, &rot).inverse() * axis_machine;
         ToolPose {
@@ -338,6 +359,37 @@ impl Machine {
         }
     }
 
+    /// The tool tip of [`Machine::forward_with`] alone, to the bit, for a caller that
+    /// does not need the tool axis (its product and normalisation are left out).
+    pub fn tip_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> Point3<f64> {
+        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
+            // forward_with's table-table tip, the same operations.
+            let (c0, c1) = (
+                Vector3::from(self.rotary[0].pivot),
+                Vector3::from(self.rotary[1].pivot),
+            );
+            let (r0, r1) = (rot[0].matrix(), rot[1].matrix());
+            let q = r0.tr_mul(&(Vector3::from(*xyz) - c0)) + c0 - c1;
+            return Point3::from(r1.tr_mul(&q) + c1);
+        }
+        let (table, nt) = self.chain(Mount::Table);
+        let (head, nh) = self.chain(Mount::Head);
+        Point3::from(self.tip_by_chains(xyz, rot, &table[..nt], &head[..nh]))
+    }
+
+    /// The tool tip (part frame) of linear positions `xyz` by the `table` and `head`
+    /// chains, for any layout.
+    fn tip_by_chains(
+        &self,
+        xyz: &[f64; 3],
+        rot: &[Rotation3<f64>; 2],
+        table: &[usize],
+        head: &[usize],
+    ) -> Vector3<f64> {
+        let tip_machine = Vector3::from(*xyz) + self.chain_point(head, rot, Vector3::zeros());
+        self.chain_point_inverse(table, rot, tip_machine)
+    }
+
     /// The linear positions (X, Y, Z, mm) that put the tool tip on `tip` (part frame) with
     /// the rotaries at `angles`.
     pub fn linear(&self, tip: &Point3<f64>, angles: [f64; 2]) -> [f64; 3] {
@@ -346,6 +398,9 @@ impl Machine {
 
     /// [`Machine::linear`] with the rotaries' rotations from [`Machine::rotations`] (or
     /// [`Machine::rotation_by`]).
+    // Inlined: ik builds the rotations for every block just to call this, and a call
+    // needs them stored and loaded again.
+    #[inline(always)]
     pub fn linear_with(&self, tip: &Point3<f64>, rot: &[Rotation3<f64>; 2]) -> [f64; 3] {
         if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
             // The common table-table case written out (ik runs it for every block): the
@@ -437,14 +492,26 @@ impl Machine {
     /// the `atan2` arguments.
     pub fn inverse_with(&self, layout: &InverseLayout, axis: Unit<Vector3<f64>>) -> Solutions {
         let (i1, i2, axis_is_p) = (layout.w1, layout.w2, layout.axis_is_p);
-        // The built-in machines' layouts get copies with the coordinate indices constant
-        // (every product picks components by them: no index loads, no bounds checks);
-        // the same code runs with them variable for any other.
-        match (i1, i2, axis_is_p) {
-            (2, 0, true) => self.inverse_coordinates(layout, axis, 2, 0, true),
-            (2, 1, true) => self.inverse_coordinates(layout, axis, 2, 1, true),
-            (1, 0, false) => self.inverse_coordinates(layout, axis, 1, 0, false),
-            _ => self.inverse_coordinates(layout, axis, i1, i2, axis_is_p),
+        // The built-in machines' layouts get copies with the coordinate indices, the
+        // rotaries of α and β and their signs constant (every product picks components by
+        // them, the angles go to fixed places: no index loads, no bounds checks, nothing
+        // kept in memory); the same code runs with them variable for any other.
+        // α the second rotary's angle, β the first's negated: both table-table and
+        // head-head layouts.
+        let carried_first = (layout.ia, layout.ib) == (1, 0)
+            && layout.sa.to_bits() == 1f64.to_bits()
+            && layout.sb.to_bits() == (-1f64).to_bits();
+        let pair = Pair {
+            ia: 1,
+            sa: 1.0,
+            ib: 0,
+            sb: -1.0,
+        };
+        match (i1, i2, axis_is_p, carried_first) {
+            (2, 0, true, true) => self.inverse_coordinates(axis, 2, 0, true, pair),
+            (2, 1, true, true) => self.inverse_coordinates(axis, 2, 1, true, pair),
+            (1, 0, false, true) => self.inverse_coordinates(axis, 1, 0, false, pair),
+            _ => self.inverse_coordinates(axis, i1, i2, axis_is_p, Pair::of(layout)),
         }
     }
 
@@ -453,11 +520,11 @@ impl Machine {
     #[inline(always)]
     fn inverse_coordinates(
         &self,
-        layout: &InverseLayout,
         axis: Unit<Vector3<f64>>,
         i1: usize,
         i2: usize,
         axis_is_p: bool,
+        pair: Pair,
     ) -> Solutions {
         let t = [axis.x, axis.y, axis.z];
         // Bounded components keep every product finite, as the left-out ones were
@@ -502,7 +569,7 @@ impl Machine {
             return self.inverse_general(axis);
         }
         let first = [Turn::of(alpha), Turn::of(beta)];
-        let (o1, t1) = self.orientation_of(layout, &first);
+        let (o1, t1) = self.orientation_of(pair, &first);
         if zc <= 0.0 {
             return Solutions {
                 found: [o1; 2],
@@ -517,7 +584,7 @@ impl Machine {
         }
         // The second solution's α and β usually follow from the first's.
         let second = [first[0].again(alpha), first[1].again(beta)];
-        let (o2, t2) = self.orientation_of(layout, &second);
+        let (o2, t2) = self.orientation_of(pair, &second);
         Solutions {
             found: [o1, o2],
             trig: [t1, t2],
@@ -526,20 +593,20 @@ impl Machine {
         }
     }
 
-    /// The orientation of angles α and β of `layout`'s condition, with the sine and
-    /// cosine of both rotaries' physical angles.
+    /// The orientation of angles α and β of a layout's condition (`pair` says whose they
+    /// are), with the sine and cosine of both rotaries' physical angles.
     #[inline(always)]
     fn orientation_of(
         &self,
-        layout: &InverseLayout,
+        pair: Pair,
         [alpha, beta]: &[Turn; 2],
     ) -> (Orientation, [(f64, f64); 2]) {
         let mut phys = [0.0; 2];
         let mut trig = [(0.0, 1.0); 2];
-        phys[layout.ia] = layout.sa * alpha.angle;
-        trig[layout.ia] = (layout.sa * alpha.sin, alpha.cos);
-        phys[layout.ib] = layout.sb * beta.angle;
-        trig[layout.ib] = (layout.sb * beta.sin, beta.cos);
+        phys[pair.ia] = pair.sa * alpha.angle;
+        trig[pair.ia] = (pair.sa * alpha.sin, alpha.cos);
+        phys[pair.ib] = pair.sb * beta.angle;
+        trig[pair.ib] = (pair.sb * beta.sin, beta.cos);
         let o = Orientation {
             angles: [self.joint(0, phys[0]), self.joint(1, phys[1])],
             free: None,
@@ -796,6 +863,31 @@ mod tests {
                 let angles = [v[3], c];
                 let chains = m.linear_by_chains(&tip, &m.rotations(angles));
                 prop_assert_eq!(m.linear(&tip, angles).map(f64::to_bits), chains.map(f64::to_bits));
+            }
+        }
+
+        /// The tip alone is forward kinematics' tip to the bit, every layout.
+        #[test]
+        fn tip_is_the_forward_tip(
+            x in -300.0f64..300.0, y in -300.0f64..300.0, z in -300.0f64..300.0,
+            a in -720.0f64..720.0, c in -720.0f64..720.0, zeroed in 0usize..32,
+        ) {
+            let mut v = [x, y, z, a, c];
+            for (i, w) in v.iter_mut().enumerate() {
+                if zeroed & (1 << i) != 0 {
+                    *w = 0.0;
+                }
+            }
+            let xyz = [v[0], v[1], v[2]];
+            for m in machines() {
+                let rot = m.rotations([v[3], v[4]]);
+                let tip = m.tip_with(&xyz, &rot);
+                let want = m.forward_with(&xyz, &rot).tip;
+                prop_assert_eq!(
+                    tip.coords.map(f64::to_bits),
+                    want.coords.map(f64::to_bits),
+                    "{}: {:?}", m.name, v
+                );
             }
         }
 

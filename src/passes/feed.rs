@@ -223,7 +223,8 @@ impl Feed {
             self.machine.rotation_by(0, s0, c0),
             self.machine.rotation_by(1, s1, c1),
         ];
-        let tip = self.machine.forward_with(&[ir[0], ir[1], ir[2]], &rot).tip;
+        // Only the tip: the tool axis would be computed and normalised for nothing.
+        let tip = self.machine.tip_with(&[ir[0], ir[1], ir[2]], &rot);
         Some(Read { printed, tip })
     }
 
@@ -251,7 +252,8 @@ impl Feed {
     /// The tool tip of the exact joint values `j`, which [`Feed::read`] could read.
     fn exact_tip(&self, j: &Joints) -> Point3<f64> {
         let v = self.index.map(|i| j.values[i]);
-        self.machine.forward(&[v[0], v[1], v[2]], [v[3], v[4]]).tip
+        let rot = self.machine.rotations([v[3], v[4]]);
+        self.machine.tip_with(&[v[0], v[1], v[2]], &rot)
     }
 
     /// The new feed of a linear move from `prev` to `end` at programmed tip speed `rate`;

@@ -44,7 +44,7 @@ use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Pose, Target,
 };
 use crate::machine::angle::{LIMIT_SLACK, near_turn, near_turn_and_within, turn_within};
-use crate::machine::{InverseLayout, Machine, Prefer};
+use crate::machine::{InverseLayout, Machine, Orientation, Prefer};
 
 /// What `ik` does where the path must flip to the other solution in a cutting move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -142,6 +142,16 @@ struct Choice {
     trig: Option<[(f64, f64); 2]>,
 }
 
+/// One orientation at the turns that suit the previous joints ([`Ik::candidate`]).
+#[derive(Debug, Clone, Copy)]
+struct Candidate {
+    /// The turns nearest the previous values, ignoring the limits, and their cost.
+    unlimited: [f64; 2],
+    unlimited_cost: (f64, f64),
+    /// The turns inside the limits and their cost; `None` when a rotary cannot reach.
+    limited: Option<([f64; 2], (f64, f64))>,
+}
+
 /// The `ik` pass.
 pub struct Ik {
     machine: Machine,
@@ -201,6 +211,7 @@ impl Ik {
 
     /// Rotary `i` at the turn of `v` nearest `prev` ignoring the limits (`v` itself
     /// without a previous value), and [`Ik::in_limits`] of it.
+    #[inline(always)]
     fn turns(&self, i: usize, v: f64, prev: Option<f64>) -> (f64, Option<f64>) {
         match (self.limits[i], prev) {
             (None, Some(p)) => {
@@ -216,10 +227,51 @@ impl Ik {
     /// How far `angles` is from the previous joints (known rotaries only): the largest
     /// change, then the sum of both (so of two orientations with the same largest change
     /// the one that moves the other rotary less wins).
+    #[inline(always)]
     fn cost(&self, angles: [f64; 2], prev: [Option<f64>; 2]) -> (f64, f64) {
-        (0..2)
-            .filter_map(|i| prev[i].map(|p| (angles[i] - p).abs()))
-            .fold((0.0, 0.0), |(m, s), d| (f64::max(m, d), s + d))
+        // Written out (a fold over the known rotaries kept its state in memory): the
+        // largest change from 0 up, the sum from 0 up, rotary 0 first.
+        let (mut m, mut s) = (0.0, 0.0);
+        if let Some(p) = prev[0] {
+            let d = (angles[0] - p).abs();
+            m = f64::max(m, d);
+            s += d;
+        }
+        if let Some(p) = prev[1] {
+            let d = (angles[1] - p).abs();
+            m = f64::max(m, d);
+            s += d;
+        }
+        (m, s)
+    }
+
+    /// Orientation `o` taken at the turns that suit it for `prev` ([`Ik::turns`]): the
+    /// angles ignoring the limits and their [`Ik::cost`], and the angles inside the limits
+    /// with theirs when both rotaries reach.
+    #[inline(always)]
+    fn candidate(&self, o: &Orientation, prev: [Option<f64>; 2]) -> Candidate {
+        let (u0, l0) = self.turns(0, o.angles[0], prev[0]);
+        let (u1, l1) = self.turns(1, o.angles[1], prev[1]);
+        let unlimited = [u0, u1];
+        let unlimited_cost = self.cost(unlimited, prev);
+        let limited = match (l0, l1) {
+            (Some(a0), Some(a1)) => {
+                let angles = [a0, a1];
+                // Inside the limits the turns are usually the same ones.
+                let c = if angles.map(f64::to_bits) == unlimited.map(f64::to_bits) {
+                    unlimited_cost
+                } else {
+                    self.cost(angles, prev)
+                };
+                Some((angles, c))
+            }
+            _ => None,
+        };
+        Candidate {
+            unlimited,
+            unlimited_cost,
+            limited,
+        }
     }
 
     /// Whether cost `a` is clearly below cost `b`; `None` on a tie.
@@ -331,39 +383,38 @@ impl Ik {
             }
         }
         // (angles, cost, index) of the best reachable orientation, and (angles, cost) of
-        // the nearest one ignoring the limits.
-        let mut best: Option<([f64; 2], (f64, f64), usize)> = None;
-        let mut nearest: Option<([f64; 2], (f64, f64))> = None;
-        for (k, o) in sols.iter().enumerate() {
-            let [(u0, l0), (u1, l1)] = [0, 1].map(|i| self.turns(i, o.angles[i], prev[i]));
-            let unlimited = [u0, u1];
-            let unlimited_cost = self.cost(unlimited, prev);
-            if nearest.is_none_or(|(_, nc)| Self::less(unlimited_cost, nc) == Some(true)) {
-                nearest = Some((unlimited, unlimited_cost));
+        // the nearest one ignoring the limits: the first orientation's, unless the second
+        // one is clearly nearer (or, reachable, ties and alone has the preferred sign).
+        // Written out for the two there can be rather than looped over, so that neither
+        // is kept in memory.
+        let (first, second) = match sols {
+            [] => return None,
+            [a] => (a, None),
+            [a, b, ..] => (a, Some(b)),
+        };
+        let one = self.candidate(first, prev);
+        let mut nearest = (one.unlimited, one.unlimited_cost);
+        let mut best = one.limited.map(|(angles, c)| (angles, c, 0));
+        if let Some(o) = second {
+            let two = self.candidate(o, prev);
+            if Self::less(two.unlimited_cost, nearest.1) == Some(true) {
+                nearest = (two.unlimited, two.unlimited_cost);
             }
-            let (Some(a0), Some(a1)) = (l0, l1) else {
-                continue;
-            };
-            let angles = [a0, a1];
-            // Inside the limits the turns are usually the same ones.
-            let c = if angles.map(f64::to_bits) == unlimited.map(f64::to_bits) {
-                unlimited_cost
-            } else {
-                self.cost(angles, prev)
-            };
-            let better = match best {
-                None => true,
-                Some((b, bc, _)) => Self::less(c, bc)
-                    .unwrap_or_else(|| self.preferred(angles) && !self.preferred(b)),
-            };
-            if better {
-                best = Some((angles, c, k));
+            if let Some((angles, c)) = two.limited {
+                let better = match best {
+                    None => true,
+                    Some((b, bc, _)) => Self::less(c, bc)
+                        .unwrap_or_else(|| self.preferred(angles) && !self.preferred(b)),
+                };
+                if better {
+                    best = Some((angles, c, 1));
+                }
             }
         }
         let (angles, cost, k) = best?;
         let mut flip = None;
-        if let Some((near, near_cost)) = nearest
-            && cutting
+        let (near, near_cost) = nearest;
+        if cutting
             && prev.iter().all(Option::is_some)
             && near_cost.0 < cost.0 - TIE
             && self.cost(angles, actual).0 > self.options.max_cutting_jump
