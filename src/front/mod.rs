@@ -63,6 +63,16 @@ pub struct LineReader<R> {
     pending: usize,
 }
 
+/// The length of the line whose `\n` is at `chunk[newline]`, as a line is counted: without
+/// the `\n` and a `\r` before it.
+pub(crate) fn content_len(chunk: &[u8], newline: usize) -> usize {
+    if newline > 0 && chunk[newline - 1] == b'\r' {
+        newline - 1
+    } else {
+        newline
+    }
+}
+
 impl<R: BufRead> LineReader<R> {
     /// Wraps `inner`; lines longer than `max_len` bytes are reported as [`RawLine::TooLong`].
     pub fn new(inner: R, max_len: usize) -> Self {
@@ -133,14 +143,7 @@ impl<R: BufRead> LineReader<R> {
         let found = loop {
             match self.inner.fill_buf() {
                 Ok(chunk) => {
-                    break memchr::memchr(b'\n', chunk).map(|i| {
-                        let content = if i > 0 && chunk[i - 1] == b'\r' {
-                            i - 1
-                        } else {
-                            i
-                        };
-                        (i + 1, content)
-                    });
+                    break memchr::memchr(b'\n', chunk).map(|i| (i + 1, content_len(chunk, i)));
                 }
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
                 Err(e) => return Err(e),

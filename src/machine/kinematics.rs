@@ -327,6 +327,17 @@ impl Machine {
 
     /// [`Machine::forward`] with the rotaries' rotations from [`Machine::rotations`].
     pub fn forward_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> ToolPose {
+        ToolPose {
+            tip: self.tip_with(xyz, rot),
+            // A product of rotations keeps unit length to rounding; renormalise anyway so
+            // the invariant holds exactly enough for long chains of computation.
+            axis: Unit::new_normalize(self.axis_with(rot)),
+        }
+    }
+
+    /// The tool tip of [`Machine::forward_with`] alone, for a caller that does not need
+    /// the tool axis.
+    pub fn tip_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> Point3<f64> {
         if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
             // The common table-table case written out (it runs for every block in
             // densify and feed): undo the base rotary, then the one it carries.
@@ -336,58 +347,33 @@ impl Machine {
             );
             let (r0, r1) = (rot[0].matrix(), rot[1].matrix());
             let q = r0.tr_mul(&(Vector3::from(*xyz) - c0)) + c0 - c1;
-            let tip = r1.tr_mul(&q) + c1;
-            // The machine's Z seen from the part: R1ᵀ R0ᵀ z, and R0ᵀ z is R0's third row.
-            let axis = r1.tr_mul(&Vector3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]));
-            return ToolPose {
-                tip: Point3::from(tip),
-                axis: Unit::new_normalize(axis),
-            };
-        }
-        let rot = *rot;
-        let (table, nt) = self.chain(Mount::Table);
-        let (head, nh) = self.chain(Mount::Head);
-        let (table, head) = (&table[..nt], &head[..nh]);
-        let tip = self.tip_by_chains(xyz, &rot, table, head);
-        let axis_machine = self.chain_rotation(head, &rot) * Vector3::z();
-        let axis = self.chain_rotation(table, &rot).inverse() * axis_machine;
-        ToolPose {
-            tip: Point3::from(tip),
-            // A product of rotations keeps unit length to rounding; renormalise anyway so
-            // the invariant holds exactly enough for long chains of computation.
-            axis: Unit::new_normalize(axis),
-        }
-    }
-
-    /// The tool tip of [`Machine::forward_with`] alone, to the bit, for a caller that
-    /// does not need the tool axis (its product and normalisation are left out).
-    pub fn tip_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> Point3<f64> {
-        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
-            // forward_with's table-table tip, the same operations.
-            let (c0, c1) = (
-                Vector3::from(self.rotary[0].pivot),
-                Vector3::from(self.rotary[1].pivot),
-            );
-            let (r0, r1) = (rot[0].matrix(), rot[1].matrix());
-            let q = r0.tr_mul(&(Vector3::from(*xyz) - c0)) + c0 - c1;
             return Point3::from(r1.tr_mul(&q) + c1);
         }
-        let (table, nt) = self.chain(Mount::Table);
-        let (head, nh) = self.chain(Mount::Head);
-        Point3::from(self.tip_by_chains(xyz, rot, &table[..nt], &head[..nh]))
+        self.tip_by_chains(xyz, rot)
     }
 
-    /// The tool tip (part frame) of linear positions `xyz` by the `table` and `head`
-    /// chains, for any layout.
-    fn tip_by_chains(
-        &self,
-        xyz: &[f64; 3],
-        rot: &[Rotation3<f64>; 2],
-        table: &[usize],
-        head: &[usize],
-    ) -> Vector3<f64> {
-        let tip_machine = Vector3::from(*xyz) + self.chain_point(head, rot, Vector3::zeros());
-        self.chain_point_inverse(table, rot, tip_machine)
+    /// [`Machine::tip_with`] for any layout, by the table and head chains (apart, so that
+    /// the table-table case stays small where it is inlined).
+    #[inline(never)]
+    fn tip_by_chains(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> Point3<f64> {
+        let (table, nt) = self.chain(Mount::Table);
+        let (head, nh) = self.chain(Mount::Head);
+        let tip_machine =
+            Vector3::from(*xyz) + self.chain_point(&head[..nh], rot, Vector3::zeros());
+        Point3::from(self.chain_point_inverse(&table[..nt], rot, tip_machine))
+    }
+
+    /// The tool axis of [`Machine::forward_with`] before it is normalised.
+    fn axis_with(&self, rot: &[Rotation3<f64>; 2]) -> Vector3<f64> {
+        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
+            // The machine's Z seen from the part: R1ᵀ R0ᵀ z, and R0ᵀ z is R0's third row.
+            let (r0, r1) = (rot[0].matrix(), rot[1].matrix());
+            return r1.tr_mul(&Vector3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]));
+        }
+        let (table, nt) = self.chain(Mount::Table);
+        let (head, nh) = self.chain(Mount::Head);
+        let axis_machine = self.chain_rotation(&head[..nh], rot) * Vector3::z();
+        self.chain_rotation(&table[..nt], rot).inverse() * axis_machine
     }
 
     /// The linear positions (X, Y, Z, mm) that put the tool tip on `tip` (part frame) with

@@ -531,12 +531,7 @@ impl Lowerer {
             let Some((n, newline)) = scan::goto::<true>(rest, &mut v) else {
                 break;
             };
-            // As the line reader counts it: without the `\n` and a `\r` before it.
-            let content = if newline > 0 && rest.get(newline - 1) == Some(&b'\r') {
-                newline - 1
-            } else {
-                newline
-            };
+            let content = crate::front::content_len(rest, newline);
             if content > self.options.max_line_len {
                 break;
             }

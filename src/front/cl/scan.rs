@@ -2,18 +2,9 @@
 //! 5-axis CL file. It reads what [`crate::front::gcode::scan_decimal_wide`] reads, with
 //! the same values (the proptests of the CL frontend hold it to the grammar).
 
-use crate::front::gcode::{POW10_INT, eight_digits, exact_decimal, scan_decimal_wide};
-
-/// `b'0'` in every byte: XOR turns digits into 0..=9.
-const ZEROS: u64 = 0x3030_3030_3030_3030;
-
-/// The high bit of each byte of `v` (bytes already XORed with [`ZEROS`]) that is not a
-/// digit. A byte of 0x8a or more carries into the next one, which can only spoil bytes
-/// after the first non-digit.
-#[inline(always)]
-fn not_digit(v: u64) -> u64 {
-    (v.wrapping_add(0x7676_7676_7676_7676) | v) & 0x8080_8080_8080_8080
-}
+use crate::front::gcode::{
+    POW10_INT, ZEROS, eight_digits, exact_decimal, not_digit, scan_decimal_wide,
+};
 
 /// A blank between values. With `CHUNK` the line ends at `\n`, which is not a blank.
 #[inline(always)]

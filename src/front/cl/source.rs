@@ -184,6 +184,15 @@ impl<R: BufRead> Source<R> {
         }
     }
 
+    /// Ends the input after a read error, reported as `io::read`.
+    fn read_failed(&mut self, e: &std::io::Error, diags: &mut Vec<Diagnostic>) {
+        self.done = true;
+        diags.push(Diagnostic::error(
+            "io::read",
+            format!("cannot read the input: {e}"),
+        ));
+    }
+
     pub fn bytes_read(&self) -> u64 {
         self.reader.bytes_read()
     }
@@ -207,11 +216,7 @@ impl<R: BufRead> Source<R> {
                 }
                 Ok(None) => break,
                 Err(e) => {
-                    self.done = true;
-                    diags.push(Diagnostic::error(
-                        "io::read",
-                        format!("cannot read the input: {e}"),
-                    ));
+                    self.read_failed(&e, diags);
                     break;
                 }
             };
@@ -288,11 +293,7 @@ impl<R: BufRead> Source<R> {
                             }
                         }
                         Err(e) => {
-                            self.done = true;
-                            diags.push(Diagnostic::error(
-                                "io::read",
-                                format!("cannot read the input: {e}"),
-                            ));
+                            self.read_failed(&e, diags);
                             continue;
                         }
                     }
@@ -313,11 +314,7 @@ impl<R: BufRead> Source<R> {
                         false
                     }
                     Err(e) => {
-                        self.done = true;
-                        diags.push(Diagnostic::error(
-                            "io::read",
-                            format!("cannot read the input: {e}"),
-                        ));
+                        self.read_failed(&e, diags);
                         false
                     }
                 }

@@ -2271,16 +2271,23 @@ fn read_digits(b: &[u8], mut at: usize, mantissa: &mut u64) -> usize {
     at
 }
 
+/// `b'0'` in every byte: XOR turns digits into 0..=9 and every other byte into 10 or more.
+pub(crate) const ZEROS: u64 = 0x3030_3030_3030_3030;
+
+/// The high bit of each byte of `v` (bytes already XORed with [`ZEROS`]) that is not a
+/// digit. A byte of 0x8a or more carries into the next one, which can only spoil bytes
+/// after the first non-digit.
+#[inline(always)]
+pub(crate) fn not_digit(v: u64) -> u64 {
+    (v.wrapping_add(0x7676_7676_7676_7676) | v) & 0x8080_8080_8080_8080
+}
+
 /// [`read_digits`] eight bytes at a time while they lie in `b`.
 #[inline(always)]
 fn read_digits_wide(b: &[u8], mut at: usize, mantissa: &mut u64) -> usize {
     while let Some(chunk) = b.get(at..).and_then(<[u8]>::first_chunk::<8>) {
-        // Digits become 0..=9; every other byte is 10 or more.
-        let v = u64::from_le_bytes(*chunk) ^ 0x3030_3030_3030_3030;
-        // The high bit of each byte that is not a digit. A byte of 0x8a or more carries
-        // into the next one, which can only spoil bytes after the first non-digit.
-        let not_digit = (v.wrapping_add(0x7676_7676_7676_7676) | v) & 0x8080_8080_8080_8080;
-        let n = (not_digit.trailing_zeros() / 8) as usize;
+        let v = u64::from_le_bytes(*chunk) ^ ZEROS;
+        let n = (not_digit(v).trailing_zeros() / 8) as usize;
         if n == 0 {
             return at;
         }

@@ -7,7 +7,7 @@
 
 pub mod ast;
 pub(crate) use lower::{LowerState, Lowerer, MotionMode, oword_call};
-pub(crate) use lower::{POW10_INT, eight_digits, exact_decimal};
+pub(crate) use lower::{POW10_INT, ZEROS, eight_digits, exact_decimal, not_digit};
 pub use lower::{parse_decimal, scan_decimal, scan_decimal_wide};
 pub mod lexer;
 mod lower;
