@@ -20,7 +20,7 @@ use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Comment, CommentStyle, FeedMode, Joints, Motion,
     MotionKind, OffsetChange, Plane, Target,
 };
-use number::{Digits, to_units};
+use number::{put_number, to_units};
 
 /// A sink for IR blocks.
 pub trait Backend {
@@ -174,45 +174,101 @@ struct Modes {
     e_relative: Option<bool>,
 }
 
-/// The line being printed: bytes that are always ASCII or whole UTF-8 characters (only
-/// `char`s, `str`s and [`Digits`] go in), kept as bytes so that a number is appended
-/// with one fixed-size copy.
-#[derive(Default)]
-struct Line(Vec<u8>);
+/// The line being printed, after the finished lines not yet handed to the writer: bytes
+/// that are always ASCII or whole UTF-8 characters (only `char`s, `str`s and numbers go
+/// in). Finished lines go out in chunks of [`Line::CHUNK`]: one `write_all` and one
+/// copy per line cost more than the printing of a short line.
+struct Line {
+    /// Initialized beyond `end`, so that a number is built in place (see
+    /// [`put_number`]) without growing the vector for every word.
+    bytes: Vec<u8>,
+    /// Where the current line starts in `bytes`.
+    start: usize,
+    /// Where the current line ends in `bytes`.
+    end: usize,
+}
 
 impl Line {
-    fn push_byte(&mut self, b: u8) {
-        debug_assert!(b.is_ascii());
-        self.0.push(b);
-    }
-    fn push(&mut self, c: char) {
-        if c.is_ascii() {
-            self.0.push(c as u8);
-        } else {
-            self.push_str(c.encode_utf8(&mut [0; 4]));
+    /// How many finished bytes are kept before they are written.
+    const CHUNK: usize = 1 << 16;
+
+    fn new() -> Line {
+        Line {
+            bytes: vec![0; Self::CHUNK + 1024],
+            start: 0,
+            end: 0,
         }
     }
-    fn push_str(&mut self, s: &str) {
-        self.0.extend_from_slice(s.as_bytes());
+    /// `bytes[end..end + n]`, grown when the line needs it.
+    #[inline(always)]
+    fn room(&mut self, n: usize) -> &mut [u8] {
+        if self.end + n > self.bytes.len() {
+            self.bytes.resize(self.end + n + 1024, 0);
+        }
+        &mut self.bytes[self.end..self.end + n]
     }
-    fn push_digits(&mut self, digits: &Digits) {
-        digits.append_to(&mut self.0);
+    fn push(&mut self, c: char) {
+        self.push_str(c.encode_utf8(&mut [0; 4]));
+    }
+    fn push_str(&mut self, s: &str) {
+        self.room(s.len()).copy_from_slice(s.as_bytes());
+        self.end += s.len();
+    }
+    /// Appends the word `letter` `units * 10^-decimals`, after a space unless the line
+    /// is empty.
+    #[inline(always)]
+    fn push_word(&mut self, letter: u8, units: i64, decimals: u8, trim: bool) {
+        debug_assert!(letter.is_ascii());
+        let spaced = !self.is_empty();
+        let room = self.room(number::ROOM);
+        let len = if spaced {
+            put_number(room, [b' ', letter], 2, units, decimals, trim)
+        } else {
+            put_number(room, [letter, 0], 1, units, decimals, trim)
+        };
+        self.end += len;
     }
     fn is_empty(&self) -> bool {
-        self.0.is_empty()
+        self.end == self.start
     }
+    /// Drops the current line.
     fn clear(&mut self) {
-        self.0.clear();
+        self.end = self.start;
     }
+    /// Inserts `s` at byte `at` of the current line.
     fn insert_str(&mut self, at: usize, s: &str) {
-        self.0.splice(at..at, s.bytes());
+        let at = self.start + at;
+        self.room(s.len());
+        self.bytes.copy_within(at..self.end, at + s.len());
+        self.bytes[at..at + s.len()].copy_from_slice(s.as_bytes());
+        self.end += s.len();
     }
+    /// The current line.
     fn as_bytes(&self) -> &[u8] {
-        &self.0
+        &self.bytes[self.start..self.end]
     }
-    /// The line as text (for messages).
+    /// The current line as text (for messages).
     fn text(&self) -> std::borrow::Cow<'_, str> {
-        String::from_utf8_lossy(&self.0)
+        String::from_utf8_lossy(self.as_bytes())
+    }
+    /// Ends the current line with a newline; writes the finished lines to `out` once
+    /// they fill a chunk.
+    #[inline(always)]
+    fn finish(&mut self, out: &mut impl Write) -> std::io::Result<()> {
+        self.push_str("\n");
+        self.start = self.end;
+        if self.start >= Self::CHUNK {
+            self.write_finished(out)?;
+        }
+        Ok(())
+    }
+    /// Writes the finished lines to `out` (the current line stays).
+    fn write_finished(&mut self, out: &mut impl Write) -> std::io::Result<()> {
+        out.write_all(&self.bytes[..self.start])?;
+        self.bytes.copy_within(self.start..self.end, 0);
+        self.end -= self.start;
+        self.start = 0;
+        Ok(())
     }
 }
 
@@ -245,7 +301,7 @@ impl<W: Write> Emitter<W> {
         Emitter {
             out,
             flavor,
-            line: Line(Vec::with_capacity(128)),
+            line: Line::new(),
             number: 0,
             modes: Modes::default(),
             printed: [None; AXIS_COUNT],
@@ -282,12 +338,8 @@ impl<W: Write> Emitter<W> {
     #[inline(always)]
     fn word_units(&mut self, letter: char, units: i64, decimals: u8) {
         debug_assert!(letter.is_ascii(), "word letter {letter:?}");
-        let mut digits = Digits::new(units, decimals, self.fmt.trim_zeros);
-        digits.prefix(letter as u8);
-        if !self.line.is_empty() {
-            digits.prefix(b' ');
-        }
-        self.line.push_digits(&digits);
+        self.line
+            .push_word(letter as u8, units, decimals, self.fmt.trim_zeros);
     }
 
     fn space(&mut self) {
@@ -311,9 +363,7 @@ impl<W: Write> Emitter<W> {
             && !matches!(self.flavor, Flavor::Grbl(_))
         {
             if !self.line.is_empty() {
-                self.line.push_byte(b'\n');
-                self.out.write_all(self.line.as_bytes()).map_err(io_error)?;
-                self.line.clear();
+                self.line.finish(&mut self.out).map_err(io_error)?;
             }
             return Ok(());
         }
@@ -377,16 +427,12 @@ impl<W: Write> Emitter<W> {
                     .with_help("shorten the line: fewer `decimals`, no `line_numbers`, or split the command"));
                 }
             }
-            self.line.push('\n');
-            self.out.write_all(self.line.as_bytes()).map_err(io_error)?;
+            self.line.finish(&mut self.out).map_err(io_error)?;
         }
-        self.line.clear();
         for c in own_lines {
             let style = self.comment_style(c);
             self.push_comment(c, style);
-            self.line.push('\n');
-            self.out.write_all(self.line.as_bytes()).map_err(io_error)?;
-            self.line.clear();
+            self.line.finish(&mut self.out).map_err(io_error)?;
         }
         Ok(())
     }
@@ -1091,6 +1137,7 @@ impl<W: Write> Emitter<W> {
     }
 
     pub(crate) fn flush(&mut self) -> Result<(), Diagnostic> {
+        self.line.write_finished(&mut self.out).map_err(io_error)?;
         self.out.flush().map_err(io_error)
     }
 }

@@ -1,5 +1,7 @@
 //! Fixed-precision number printing without float formatting on the hot path.
 
+use crate::front::gcode::ZEROS;
+
 /// Rounds `value` to `decimals` places as an integer count of units (`10^-decimals`).
 ///
 /// Returns `None` when the value does not fit (non-finite, or beyond ±9e15 units).
@@ -56,134 +58,178 @@ pub fn from_units(units: i64, decimals: u8) -> f64 {
 /// `10^d` for the decimals a number is printed with (at most 9), exact.
 const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 
-/// Where [`Digits`] ends the number in its buffer.
-const DIGITS_END: usize = 24;
+/// The bytes a number may take while it is built in place: a two-byte lead, a sign, 20
+/// digits, the point, 9 decimals, and the slack of the last 8-byte store.
+pub(crate) const ROOM: usize = 40;
 
-/// `00`, `01`, ..., `99`: two digits per division by 100, as itoa does.
-const PAIRS: &[u8; 200] = b"0001020304050607080910111213141516171819\
-2021222324252627282930313233343536373839\
-4041424344454647484950515253545556575859\
-6061626364656667686970717273747576777879\
-8081828384858687888990919293949596979899";
+/// `10^t` for the digit count of a `u32`.
+const POW10_U32: [u32; 10] = [
+    1,
+    10,
+    100,
+    1_000,
+    10_000,
+    100_000,
+    1_000_000,
+    10_000_000,
+    100_000_000,
+    1_000_000_000,
+];
 
-/// A printed fixed-point number in a buffer with room on both sides, so that a caller can
-/// put a letter and a space before it and copy it out in one fixed-size move (no
-/// `memcpy` call of a variable length for every word of every line).
-pub(crate) struct Digits {
-    buf: [u8; 2 * DIGITS_END],
-    /// The number is `buf[start..end]`, with `end <= DIGITS_END`.
-    start: usize,
-    end: usize,
-}
-
-/// Writes the two digits of `pair` (below 100) at `buf[i..i + 2]`.
+/// The number of decimal digits of `x` (1 for 0), without a loop or a branch.
 #[inline(always)]
-fn put_pair(buf: &mut [u8; 2 * DIGITS_END], i: usize, pair: u32) {
-    let p = 2 * pair as usize;
-    buf[i..i + 2].copy_from_slice(&PAIRS[p..p + 2]);
+fn decimal_len(x: u32) -> usize {
+    // `x | 1` has as many digits as `x` (no power of ten is odd) and is never 0.
+    let x = x | 1;
+    let t = ((32 - x.leading_zeros()) * 1233) >> 12;
+    t as usize + 1 - usize::from(x < POW10_U32[t as usize])
 }
 
-impl Digits {
-    /// `units * 10^-decimals` (decimals at most 9), trailing zeros trimmed when `trim` is
-    /// set. The number is at most 22 bytes long (a sign, 20 digits and the point), which
-    /// leaves room for two prefixes.
-    // Inlined always: called for every word of every line, and out of line it returned
-    // its 64 bytes through memory.
-    #[inline(always)]
-    pub(crate) fn new(units: i64, decimals: u8, trim: bool) -> Digits {
-        // One body per precision: the divisor and the number of fraction digits are
-        // constants there, so the fraction is straight-line code with no loop counter.
-        match decimals {
-            0 => Digits::fixed::<0>(units, trim),
-            1 => Digits::fixed::<1>(units, trim),
-            2 => Digits::fixed::<2>(units, trim),
-            3 => Digits::fixed::<3>(units, trim),
-            4 => Digits::fixed::<4>(units, trim),
-            5 => Digits::fixed::<5>(units, trim),
-            6 => Digits::fixed::<6>(units, trim),
-            7 => Digits::fixed::<7>(units, trim),
-            8 => Digits::fixed::<8>(units, trim),
-            _ => Digits::fixed::<9>(units, trim),
-        }
-    }
+/// The eight decimal digits of `x` (below 10^8) as byte values 0..=9, the most
+/// significant in the lowest byte (first in memory): in registers, by multiplications,
+/// so that a number is stored in one move.
+#[inline(always)]
+fn digit_bytes(x: u32) -> u64 {
+    let x = u64::from(x);
+    // Four digits per 32-bit lane, then two per 16-bit lane, then one per byte: n / 100
+    // is (n * 5243) >> 19 below 43699, n / 10 is (n * 103) >> 10 below 100.
+    let v = (x / 10_000) | ((x % 10_000) << 32);
+    let hundreds = ((v * 5243) >> 19) & 0x0000_007F_0000_007F;
+    let v = hundreds | ((v - hundreds * 100) << 16);
+    let tens = ((v * 103) >> 10) & 0x000F_000F_000F_000F;
+    tens | ((v - tens * 10) << 8)
+}
 
-    /// [`Digits::new`] at `FRAC` decimals (at most 9).
-    #[inline(always)]
-    fn fixed<const FRAC: usize>(units: i64, trim: bool) -> Digits {
-        let u = units.unsigned_abs();
-        let frac = FRAC;
-        // Whole and fractional part by a constant divisor (a multiplication), not by a
-        // variable power of ten (a 64-bit `div`).
-        let p = 10u64.pow(FRAC as u32);
-        let (mut whole, fraction) = (u / p, u % p);
-        let mut buf = [b'0'; 2 * DIGITS_END];
-        let mut i = DIGITS_END;
-        let mut end = DIGITS_END;
-        if frac > 0 {
-            // Below 10^9: 32-bit arithmetic.
-            let mut f = fraction as u32;
-            let mut left = frac;
-            while left >= 2 {
-                i -= 2;
-                put_pair(&mut buf, i, f % 100);
-                f /= 100;
-                left -= 2;
+/// The four decimal digits of `x` (below 10^4) as byte values, like [`digit_bytes`]:
+/// most numbers printed have at most four digits before and after the point.
+#[inline(always)]
+fn digit_bytes4(x: u32) -> u64 {
+    let hundreds = (x * 5243) >> 19;
+    let v = hundreds | ((x - hundreds * 100) << 16);
+    let tens = ((v * 103) >> 10) & 0x000F_000F;
+    u64::from(tens | ((v - tens * 10) << 8))
+}
+
+/// Stores the eight bytes of `v` at `buf[at..at + 8]`.
+#[inline(always)]
+fn store8(buf: &mut [u8], at: usize, v: u64) {
+    buf[at..at + 8].copy_from_slice(&v.to_le_bytes());
+}
+
+/// Puts the digits of `whole` at `buf[at..]` and returns where they end. Bytes after
+/// the end may be overwritten (up to 8 past it).
+#[inline(always)]
+fn put_whole(buf: &mut [u8], at: usize, whole: u64) -> usize {
+    if whole < 10_000 {
+        let n = decimal_len(whole as u32);
+        // Only the low four bytes are digits.
+        store8(
+            buf,
+            at,
+            (digit_bytes4(whole as u32) | (ZEROS & 0xFFFF_FFFF)) >> (8 * (4 - n)),
+        );
+        at + n
+    } else if whole < 100_000_000 {
+        let n = decimal_len(whole as u32);
+        // The leading zeros of the eight digits are shifted out.
+        store8(
+            buf,
+            at,
+            (digit_bytes(whole as u32) | ZEROS) >> (8 * (8 - n)),
+        );
+        at + n
+    } else {
+        put_long_whole(buf, at, whole)
+    }
+}
+
+/// [`put_whole`] from 10^8 on: the last eight digits after the others.
+#[cold]
+#[inline(never)]
+fn put_long_whole(buf: &mut [u8], at: usize, whole: u64) -> usize {
+    let at = put_whole(buf, at, whole / 100_000_000);
+    store8(buf, at, digit_bytes((whole % 100_000_000) as u32) | ZEROS);
+    at + 8
+}
+
+/// Puts `lead[..lead_len]` (at most two ASCII bytes, such as `" X"`) and
+/// `units * 10^-decimals` (decimals at most 9) at the start of `buf` (at least
+/// [`ROOM`] bytes, which it may overwrite), trailing zeros trimmed when `trim` is set;
+/// returns the length. The number is built where it ends up, with a few
+/// whole-register stores: built on the side and copied, its bytes were read back
+/// before their narrow stores had landed, and the emitter stalled on every word.
+#[inline(always)]
+pub(crate) fn put_number(
+    buf: &mut [u8],
+    lead: [u8; 2],
+    lead_len: usize,
+    units: i64,
+    decimals: u8,
+    trim: bool,
+) -> usize {
+    // One body per precision: the divisor and the number of fraction digits are
+    // constants there.
+    match decimals {
+        0 => put_fixed::<0>(buf, lead, lead_len, units, trim),
+        1 => put_fixed::<1>(buf, lead, lead_len, units, trim),
+        2 => put_fixed::<2>(buf, lead, lead_len, units, trim),
+        3 => put_fixed::<3>(buf, lead, lead_len, units, trim),
+        4 => put_fixed::<4>(buf, lead, lead_len, units, trim),
+        5 => put_fixed::<5>(buf, lead, lead_len, units, trim),
+        6 => put_fixed::<6>(buf, lead, lead_len, units, trim),
+        7 => put_fixed::<7>(buf, lead, lead_len, units, trim),
+        8 => put_fixed::<8>(buf, lead, lead_len, units, trim),
+        _ => put_fixed::<9>(buf, lead, lead_len, units, trim),
+    }
+}
+
+/// [`put_number`] at `FRAC` decimals (at most 9).
+#[inline(always)]
+fn put_fixed<const FRAC: usize>(
+    buf: &mut [u8],
+    lead: [u8; 2],
+    lead_len: usize,
+    units: i64,
+    trim: bool,
+) -> usize {
+    let u = units.unsigned_abs();
+    // A constant divisor: a multiplication, not a 64-bit `div`.
+    let p = 10u64.pow(FRAC as u32);
+    let (whole, fraction) = (u / p, u % p);
+    buf[..2].copy_from_slice(&lead);
+    let mut at = lead_len;
+    // The sign is always stored and kept only for a negative number.
+    buf[at] = b'-';
+    at += usize::from(units < 0);
+    at = put_whole(buf, at, whole);
+    if FRAC > 0 {
+        buf[at] = b'.';
+        // The fraction's digits, and how many of them are trailing zeros.
+        let zeros = if FRAC == 9 {
+            let first = (fraction / 100_000_000) as u8;
+            let rest = digit_bytes((fraction % 100_000_000) as u32);
+            buf[at + 1] = b'0' + first;
+            store8(buf, at + 2, rest | ZEROS);
+            if rest == 0 {
+                8 + usize::from(first == 0)
+            } else {
+                rest.leading_zeros() as usize / 8
             }
-            if left == 1 {
-                i -= 1;
-                buf[i] = b'0' + (f % 10) as u8;
-            }
-            i -= 1;
-            buf[i] = b'.';
-            if trim {
-                while buf[end - 1] == b'0' {
-                    end -= 1;
-                }
-                if end == i + 1 {
-                    end = i;
-                }
-            }
-        }
-        // The whole part, at least one digit (the buffer is '0' where nothing is put).
-        while whole >= 100 {
-            i -= 2;
-            put_pair(&mut buf, i, (whole % 100) as u32);
-            whole /= 100;
-        }
-        if whole >= 10 {
-            i -= 2;
-            put_pair(&mut buf, i, whole as u32);
         } else {
-            i -= 1;
-            buf[i] = b'0' + whole as u8;
-        }
-        if units < 0 {
-            i -= 1;
-            buf[i] = b'-';
-        }
-        Digits { buf, start: i, end }
+            // Below 10^FRAC: the top 8 - FRAC digits are zeros, shifted out.
+            let digits = if FRAC <= 4 {
+                digit_bytes4(fraction as u32) >> (8 * (4 - FRAC))
+            } else {
+                digit_bytes(fraction as u32) >> (8 * (8 - FRAC))
+            };
+            store8(buf, at + 1, digits | ZEROS);
+            digits.leading_zeros() as usize / 8 - (8 - FRAC)
+        };
+        let kept = if trim { FRAC - zeros } else { FRAC };
+        // The point goes only with digits after it.
+        at += kept + usize::from(kept > 0);
     }
-
-    /// Puts `c` (ASCII) just before the number.
-    #[inline]
-    pub(crate) fn prefix(&mut self, c: u8) {
-        self.start -= 1;
-        self.buf[self.start] = c;
-    }
-
-    /// The number (with its prefixes), ASCII.
-    pub(crate) fn as_bytes(&self) -> &[u8] {
-        &self.buf[self.start..self.end]
-    }
-
-    /// Appends the number to `out` with one copy of a fixed size: the whole tail of the
-    /// buffer goes in, then `out` is cut back to the number's end.
-    #[inline]
-    pub(crate) fn append_to(&self, out: &mut Vec<u8>) {
-        let len = out.len();
-        out.extend_from_slice(&self.buf[self.start..self.start + DIGITS_END]);
-        out.truncate(len + self.end - self.start);
-    }
+    at
 }
 
 /// Appends `units * 10^-decimals` to `out`, trimming trailing zeros when `trim` is set
@@ -199,12 +245,9 @@ impl Digits {
 /// assert_eq!(s, "0.005");
 /// ```
 pub fn write_units(out: &mut String, units: i64, decimals: u8, trim: bool) {
-    out.extend(
-        Digits::new(units, decimals, trim)
-            .as_bytes()
-            .iter()
-            .map(|&b| char::from(b)),
-    );
+    let mut buf = [0; ROOM];
+    let len = put_number(&mut buf, [0; 2], 0, units, decimals, trim);
+    out.extend(buf[..len].iter().map(|&b| char::from(b)));
 }
 
 /// Prints `value` at `decimals` places (see [`write_units`]); `false` if it does not fit.
@@ -259,6 +302,44 @@ mod tests {
     }
 
     #[test]
+    fn digit_counts_and_digit_bytes_hold_for_every_number_below_10_to_the_8() {
+        // Every 997th number and every one next to a power of ten.
+        let edges = (0..9).flat_map(|k| {
+            let p = 10u32.pow(k);
+            [p.saturating_sub(1), p, p + 1]
+        });
+        for x in (0..100_000_000)
+            .step_by(997)
+            .chain(edges.filter(|&x| x < 100_000_000))
+        {
+            let text = x.to_string();
+            assert_eq!(decimal_len(x), text.len(), "{x}");
+            let want = format!("{x:08}")
+                .bytes()
+                .map(|b| b - b'0')
+                .collect::<Vec<_>>();
+            assert_eq!(digit_bytes(x).to_le_bytes().to_vec(), want, "{x}");
+        }
+        for x in 0..10_000 {
+            let want = format!("{x:04}")
+                .bytes()
+                .map(|b| b - b'0')
+                .collect::<Vec<_>>();
+            assert_eq!(digit_bytes4(x).to_le_bytes()[..4], want, "{x}");
+            assert_eq!(digit_bytes4(x) >> 32, 0, "{x}");
+        }
+        for x in [
+            100_000_000,
+            100_000_001,
+            999_999_999,
+            1_000_000_000,
+            u32::MAX,
+        ] {
+            assert_eq!(decimal_len(x), x.to_string().len(), "{x}");
+        }
+    }
+
+    #[test]
     fn prints_units_at_the_ends_of_the_range() {
         for units in [i64::MIN, i64::MIN + 1, -1, 0, 1, 10, 100, i64::MAX] {
             for d in 0..=10 {
@@ -272,28 +353,25 @@ mod tests {
     }
 
     proptest::proptest! {
-        /// Any units at any precision print as plain formatting does, and with a letter
-        /// and a space put before them and copied out in one go, the same bytes follow
-        /// what is already in the line.
+        /// Any units at any precision print as plain formatting does, also after a
+        /// letter, with or without a space before it.
         #[test]
         fn units_print_as_plain_formatting_does(
             units in proptest::num::i64::ANY,
             small in -10_000_000i64..10_000_000,
             decimals in 0u8..11,
             trim: bool,
-            before in "[ -~]{0,40}",
         ) {
             for u in [units, small] {
                 let want = units_by_format(u, decimals, trim);
                 let mut s = String::new();
                 write_units(&mut s, u, decimals, trim);
                 proptest::prop_assert_eq!(&s, &want);
-                let mut line = before.clone().into_bytes();
-                let mut digits = Digits::new(u, decimals, trim);
-                digits.prefix(b'X');
-                digits.prefix(b' ');
-                digits.append_to(&mut line);
-                proptest::prop_assert_eq!(line, format!("{before} X{want}").into_bytes());
+                let mut buf = [b'#'; ROOM];
+                let len = put_number(&mut buf, *b" X", 2, u, decimals, trim);
+                proptest::prop_assert_eq!(&buf[..len], format!(" X{want}").into_bytes());
+                let len = put_number(&mut buf, [b'Y', 0], 1, u, decimals, trim);
+                proptest::prop_assert_eq!(&buf[..len], format!("Y{want}").into_bytes());
             }
         }
     }
