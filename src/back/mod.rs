@@ -1303,3 +1303,58 @@ pub(crate) fn write_all(
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Lines built word by word, with an insertion at the front and a line longer than
+    /// the spare room, come out whole and in order across many chunk writes.
+    #[test]
+    fn lines_survive_the_chunked_writes() {
+        let mut line = Line::new();
+        let mut out = Vec::new();
+        let mut want = String::new();
+        let long = "x".repeat(3000);
+        for i in 0..20_000i64 {
+            line.push_word(b'X', i * 7 - 5000, 3, true);
+            line.push_word(b'F', i, 0, false);
+            let mut text = format!("X{} F{i}", number_text(i * 7 - 5000, 3));
+            if i % 97 == 0 {
+                line.insert_str(0, "N1 ");
+                text.insert_str(0, "N1 ");
+            }
+            if i % 1001 == 0 {
+                line.push(' ');
+                line.push_str(&long);
+                text.push(' ');
+                text.push_str(&long);
+            }
+            if i % 13 == 0 {
+                // A line dropped before it ends leaves nothing behind.
+                line.push_str("dropped");
+                line.clear();
+                continue;
+            }
+            if i % 5000 == 1 {
+                // The finished lines go out; the one being built stays.
+                line.write_finished(&mut out)
+                    .expect("a Vec takes every write");
+            }
+            assert_eq!(line.as_bytes(), text.as_bytes());
+            line.finish(&mut out).expect("a Vec takes every write");
+            want.push_str(&text);
+            want.push('\n');
+        }
+        line.write_finished(&mut out)
+            .expect("a Vec takes every write");
+        assert!(want.len() > 4 * Line::CHUNK);
+        assert_eq!(String::from_utf8(out).expect("ASCII"), want);
+    }
+
+    fn number_text(units: i64, decimals: u8) -> String {
+        let mut s = String::new();
+        number::write_units(&mut s, units, decimals, true);
+        s
+    }
+}
