@@ -521,14 +521,21 @@ impl Densify {
             speed: 0.0,
             accel: 0.0,
         };
-        for &i in self.head.iter().rev() {
-            jet = self.stage(jet, i, a, b);
-        }
         let x0 = Vector3::from(a.xyz);
         let x1 = Vector3::from(b.xyz);
-        jet.speed += (x1 - x0).norm();
-        for &i in &self.table {
-            jet = self.stage(jet, i, a, b);
+        if self.table_table.is_some() {
+            // The loops below for this layout, without the loops and their bounds checks.
+            jet.speed += (x1 - x0).norm();
+            jet = self.stage(jet, 0, a, b);
+            jet = self.stage(jet, 1, a, b);
+        } else {
+            for &i in self.head.iter().rev() {
+                jet = self.stage(jet, i, a, b);
+            }
+            jet.speed += (x1 - x0).norm();
+            for &i in &self.table {
+                jet = self.stage(jet, i, a, b);
+            }
         }
         let omega: f64 = (0..2)
             .map(|i| (b.angles[i] - a.angles[i]).abs().to_radians())
@@ -728,14 +735,15 @@ impl Densify {
     fn advance(&mut self, block: &Block) -> bool {
         match &block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(end) = m.target else {
+                // By reference: a copy of the 88 bytes was made for nothing.
+                let Target::Joints(end) = &m.target else {
                     // A pose this late means the joints are not known.
                     self.remember(Joints::default());
                     return true;
                 };
                 let end_slot = 1 - self.prev_slot;
                 // Built in the free slot: the previous node stays until the move is done.
-                self.set_node(end_slot, &end);
+                self.set_node(end_slot, end);
                 if self.checked(m)
                     && let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot])
                     && !self.within(a, b)
@@ -762,8 +770,8 @@ impl Densify {
     }
 
     /// The position is now `end` of motion `m`, whose node is in `nodes[end_slot]`.
-    fn moved_to(&mut self, m: &Motion, end: Joints, end_slot: usize) {
-        self.prev = end;
+    fn moved_to(&mut self, m: &Motion, end: &Joints, end_slot: usize) {
+        self.prev = *end;
         self.prev_slot = end_slot;
         if m.machine_frame {
             self.forget(m.written);
@@ -776,7 +784,7 @@ impl Densify {
         let BlockKind::Motion(m) = &block.kind else {
             return;
         };
-        let Target::Joints(end) = m.target else {
+        let Target::Joints(end) = &m.target else {
             return;
         };
         let end_slot = 1 - self.prev_slot;
