@@ -47,7 +47,7 @@ use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, Motion, MotionKind, Span, Target};
 use crate::machine::angle::near_turn;
-use crate::machine::{Machine, Mount, ToolPose};
+use crate::machine::{Machine, Mount, RotaryLetter, ToolPose};
 
 /// Options of `densify`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -246,6 +246,55 @@ struct Jet {
     accel: f64,
 }
 
+/// [`Densify::reach`] of a machine with both rotaries on the table, written out: the
+/// general chain's rotation matrix, its products with the matrix's zeros and ones and
+/// the projections on a coordinate axis only add signed zeros, so every value is equal to
+/// the chain's (a zero may differ in sign, which the distances, square roots of sums of
+/// squares, cannot see), the other products and sums being the same in the same order.
+/// The chain from the joints to the reach, which every move's bound waits on, is the
+/// shorter for it.
+#[derive(Debug, Clone, Copy)]
+struct TableTable {
+    about: [RotaryLetter; 2],
+    pivots: [[f64; 3]; 2],
+}
+
+impl TableTable {
+    /// The distance from the axis `about` of the point `d` from a pivot on it.
+    #[inline(always)]
+    fn off_axis(about: RotaryLetter, d: [f64; 3]) -> f64 {
+        let [x, y, z] = d;
+        match about {
+            RotaryLetter::A => (y * y + z * z).sqrt(),
+            RotaryLetter::B => (x * x + z * z).sqrt(),
+            RotaryLetter::C => (x * x + y * y).sqrt(),
+        }
+    }
+
+    /// [`Node::reach`] of the point `xyz`, the base rotary's physical angle having sine
+    /// `s` and cosine `c`: measured against the base, undone by it (`Rᵀ`, as
+    /// `Rotation3::inverse` and the product give it), measured against the other.
+    #[inline(always)]
+    fn reach(&self, xyz: [f64; 3], s: f64, c: f64) -> [f64; 2] {
+        let [p0, p1] = self.pivots;
+        let d = [xyz[0] - p0[0], xyz[1] - p0[1], xyz[2] - p0[2]];
+        let t = match self.about[0] {
+            RotaryLetter::A => [d[0], c * d[1] + s * d[2], c * d[2] - s * d[1]],
+            RotaryLetter::B => [c * d[0] - s * d[2], d[1], s * d[0] + c * d[2]],
+            RotaryLetter::C => [c * d[0] + s * d[1], c * d[1] - s * d[0], d[2]],
+        };
+        let d1 = [
+            p0[0] + t[0] - p1[0],
+            p0[1] + t[1] - p1[1],
+            p0[2] + t[2] - p1[2],
+        ];
+        [
+            Self::off_axis(self.about[0], d),
+            Self::off_axis(self.about[1], d1),
+        ]
+    }
+}
+
 /// The `densify` pass.
 pub struct Densify {
     machine: Machine,
@@ -258,6 +307,9 @@ pub struct Densify {
     table: Vec<usize>,
     /// Each rotary's axis direction and pivot.
     rotary_lines: [(Vector3<f64>, Vector3<f64>); 2],
+    /// Both rotaries on the table (the first carrying the second): [`Node::reach`] by
+    /// [`TableTable::reach`].
+    table_table: Option<TableTable>,
     /// The last emitted position.
     prev: Joints,
     /// Its five machine axes and pose (when all are known) sit in `nodes[prev_slot]`; a
@@ -273,18 +325,23 @@ impl Densify {
         options.check()?;
         machine.check()?;
         let axis_tol = options.axis_tolerance.to_radians();
-        let head = (0..2)
+        let head: Vec<usize> = (0..2)
             .filter(|&i| machine.rotary[i].on == Mount::Head)
             .collect();
-        let table = (0..2)
+        let table: Vec<usize> = (0..2)
             .filter(|&i| machine.rotary[i].on == Mount::Table)
             .collect();
         let rotary_lines = [0, 1].map(|i| {
             let r = &machine.rotary[i];
             (Vector3::ith(r.axis.index(), 1.0), Vector3::from(r.pivot))
         });
+        let table_table = (head.is_empty() && table == [0, 1]).then(|| TableTable {
+            about: [machine.rotary[0].axis, machine.rotary[1].axis],
+            pivots: [machine.rotary[0].pivot, machine.rotary[1].pivot],
+        });
         Ok(Densify {
             rotary_lines,
+            table_table,
             axes: machine.rotary_axes(),
             machine,
             axis_tol,
@@ -298,14 +355,51 @@ impl Densify {
         })
     }
 
-    fn node(&self, joints: &Joints) -> Option<Node> {
+    /// The five machine axes of `joints`, when all are known.
+    #[inline(always)]
+    fn five_axes(&self, joints: &Joints) -> Option<([f64; 3], [f64; 2])> {
         let xyz = [
             joints.get(Axis::X)?,
             joints.get(Axis::Y)?,
             joints.get(Axis::Z)?,
         ];
         let angles = [joints.get(self.axes[0])?, joints.get(self.axes[1])?];
+        Some((xyz, angles))
+    }
+
+    #[cfg(test)]
+    fn node(&self, joints: &Joints) -> Option<Node> {
+        let (xyz, angles) = self.five_axes(joints)?;
         Some(self.node_at(*joints, xyz, angles))
+    }
+
+    /// `nodes[slot] = self.node(joints)`, built in place field by field: built apart and
+    /// moved in, its 200 bytes went through `memcpy`, whose wide loads of the narrow
+    /// stores that had just built it stalled every move.
+    fn set_node(&mut self, slot: usize, joints: &Joints) {
+        let Some((xyz, angles)) = self.five_axes(joints) else {
+            self.nodes[slot] = None;
+            return;
+        };
+        let reach = self.reach(xyz, angles);
+        match &mut self.nodes[slot] {
+            Some(n) => {
+                n.joints = *joints;
+                n.xyz = xyz;
+                n.angles = angles;
+                n.reach = reach;
+                n.pose = OnceCell::new();
+            }
+            none => {
+                *none = Some(Node {
+                    joints: *joints,
+                    xyz,
+                    angles,
+                    reach,
+                    pose: OnceCell::new(),
+                })
+            }
+        }
     }
 
     /// The node of `joints`, whose five machine axes are `xyz` and `angles`.
@@ -314,7 +408,7 @@ impl Densify {
             joints,
             xyz,
             angles,
-            reach: self.reach(&xyz, angles),
+            reach: self.reach(xyz, angles),
             pose: OnceCell::new(),
         }
     }
@@ -328,28 +422,44 @@ impl Densify {
     /// [`Node::reach`]: the tip's point carried through the chain of
     /// [`Densify::curvature_bounds`] (head rotaries outermost first, the linear axes, the
     /// table rotaries undone base first), measured as it enters each rotary's stage.
-    fn reach(&self, xyz: &[f64; 3], angles: [f64; 2]) -> [f64; 2] {
+    // Inlined always, `xyz` by value: through a reference, the joints' narrow stores
+    // came back as one wide load (a stall on every move).
+    #[inline(always)]
+    fn reach(&self, xyz: [f64; 3], angles: [f64; 2]) -> [f64; 2] {
+        if let Some(tt) = &self.table_table {
+            let (s, c) = self.machine.physical(0, angles[0]).sin_cos();
+            return tt.reach(xyz, s, c);
+        }
         // Each stage's rotation is built where it turns the point: the last table stage
         // only measures it, so that rotary's sine and cosine are not needed.
         let rot = |i: usize| self.machine.rotation(i, angles[i]);
-        let mut reach = [0.0; 2];
+        // Two scalars, not an array indexed by `i`: the array's narrow stores, read back
+        // as one wide load when the node was built, stalled every move.
+        let mut reach = (0.0, 0.0);
+        let mut put = |i: usize, r: f64| {
+            if i == 0 {
+                reach.0 = r;
+            } else {
+                reach.1 = r;
+            }
+        };
         let mut q = Vector3::zeros();
         for &i in self.head.iter().rev() {
-            reach[i] = self.off_axis(i, &q);
+            put(i, self.off_axis(i, &q));
             let c = self.rotary_lines[i].1;
             q = c + rot(i) * (q - c);
         }
-        q += Vector3::from(*xyz);
+        q += Vector3::from(xyz);
         if let Some((&last, undone)) = self.table.split_last() {
             for &i in undone {
-                reach[i] = self.off_axis(i, &q);
+                put(i, self.off_axis(i, &q));
                 let c = self.rotary_lines[i].1;
                 q = c + rot(i).inverse() * (q - c);
             }
             // Where the point goes after the last stage does not enter the bound.
-            reach[last] = self.off_axis(last, &q);
+            put(last, self.off_axis(last, &q));
         }
-        reach
+        [reach.0, reach.1]
     }
 
     /// The distance of `q` from the axis of rotary `i`.
@@ -361,7 +471,7 @@ impl Densify {
 
     fn remember(&mut self, joints: Joints) {
         self.prev = joints;
-        self.nodes[self.prev_slot] = self.node(&joints);
+        self.set_node(self.prev_slot, &joints);
     }
 
     fn forget(&mut self, axes: crate::ir::AxisSet) {
@@ -411,14 +521,21 @@ impl Densify {
             speed: 0.0,
             accel: 0.0,
         };
-        for &i in self.head.iter().rev() {
-            jet = self.stage(jet, i, a, b);
-        }
         let x0 = Vector3::from(a.xyz);
         let x1 = Vector3::from(b.xyz);
-        jet.speed += (x1 - x0).norm();
-        for &i in &self.table {
-            jet = self.stage(jet, i, a, b);
+        if self.table_table.is_some() {
+            // The loops below for this layout, without the loops and their bounds checks.
+            jet.speed += (x1 - x0).norm();
+            jet = self.stage(jet, 0, a, b);
+            jet = self.stage(jet, 1, a, b);
+        } else {
+            for &i in self.head.iter().rev() {
+                jet = self.stage(jet, i, a, b);
+            }
+            jet.speed += (x1 - x0).norm();
+            for &i in &self.table {
+                jet = self.stage(jet, i, a, b);
+            }
         }
         let omega: f64 = (0..2)
             .map(|i| (b.angles[i] - a.angles[i]).abs().to_radians())
@@ -618,14 +735,15 @@ impl Densify {
     fn advance(&mut self, block: &Block) -> bool {
         match &block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(end) = m.target else {
+                // By reference: a copy of the 88 bytes was made for nothing.
+                let Target::Joints(end) = &m.target else {
                     // A pose this late means the joints are not known.
                     self.remember(Joints::default());
                     return true;
                 };
                 let end_slot = 1 - self.prev_slot;
                 // Built in the free slot: the previous node stays until the move is done.
-                self.nodes[end_slot] = self.node(&end);
+                self.set_node(end_slot, end);
                 if self.checked(m)
                     && let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot])
                     && !self.within(a, b)
@@ -652,8 +770,8 @@ impl Densify {
     }
 
     /// The position is now `end` of motion `m`, whose node is in `nodes[end_slot]`.
-    fn moved_to(&mut self, m: &Motion, end: Joints, end_slot: usize) {
-        self.prev = end;
+    fn moved_to(&mut self, m: &Motion, end: &Joints, end_slot: usize) {
+        self.prev = *end;
         self.prev_slot = end_slot;
         if m.machine_frame {
             self.forget(m.written);
@@ -666,7 +784,7 @@ impl Densify {
         let BlockKind::Motion(m) = &block.kind else {
             return;
         };
-        let Target::Joints(end) = m.target else {
+        let Target::Joints(end) = &m.target else {
             return;
         };
         let end_slot = 1 - self.prev_slot;
@@ -753,6 +871,49 @@ mod tests {
             assert!(tip_bound < 20.0 * worst, "{name}: {tip_bound} vs {worst}");
             assert_eq!(d.curvature_bounds(&a, &a).1, 0.0);
         }
+    }
+
+    /// The written-out table-table reach is the general chain's, value for value, on
+    /// quarter turns (sines and cosines of zero) and points on the axes too.
+    #[test]
+    fn table_table_reach_is_the_chain() {
+        let mut seen = 0;
+        for name in ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"] {
+            let mut d = Densify::new(machine(name), Options::default()).expect("pass");
+            let Some(tt) = d.table_table else {
+                continue;
+            };
+            seen += 1;
+            let mut state = 0x9e37_79b9_7f4a_7c15u64;
+            let mut next = move || {
+                state ^= state << 13;
+                state ^= state >> 7;
+                state ^= state << 17;
+                (state >> 11) as f64 / (1u64 << 53) as f64
+            };
+            for k in 0..20_000 {
+                let mut xyz = [0.0; 3].map(|_| 600.0 * next() - 300.0);
+                let mut angles = [0.0; 2].map(|_| 800.0 * next() - 400.0);
+                if k % 3 == 0 {
+                    angles = angles.map(|a| (a / 90.0).round() * 90.0);
+                }
+                if k % 5 == 0 {
+                    xyz[k % 3] = 0.0;
+                    xyz[(k + 1) % 3] = -0.0;
+                }
+                let (s, c) = d.machine.physical(0, angles[0]).sin_cos();
+                let fast = tt.reach(xyz, s, c);
+                d.table_table = None;
+                let chain = d.reach(xyz, angles);
+                d.table_table = Some(tt);
+                assert_eq!(
+                    fast.map(f64::to_bits),
+                    chain.map(f64::to_bits),
+                    "{name} {xyz:?} {angles:?}"
+                );
+            }
+        }
+        assert!(seen > 0);
     }
 
     #[test]

@@ -38,7 +38,7 @@ use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target,
 };
 use crate::machine::grid::RotaryGrid;
-use crate::machine::{FeedRule, Machine};
+use crate::machine::{FeedRule, Machine, Mount, RotaryLetter};
 
 /// Options of `feed`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -81,6 +81,63 @@ const ZERO_TIP: f64 = 1e-6;
 
 /// Largest relative error of a printed F.
 const FEED_PRECISION: f64 = 1e-3;
+
+/// From this many units of its decimals on, a printed F is within [`FEED_PRECISION`]
+/// without a division to show it: rounding to a whole unit moves it by at most half a unit,
+/// 5e-4 of it, and the floating-point steps of the check add a few ulps.
+const SURE_UNITS: f64 = 1000.0;
+
+/// The tip of a machine with both rotaries on the table, from the sines and cosines in
+/// registers: [`Machine::tip_with`] takes its rotations and joints through memory, and the
+/// narrow stores that build them, read back wide, stalled every read.
+///
+/// Each turn is written out about its coordinate axis: the products [`Machine::tip_with`]
+/// makes with the matrix's zeros and ones only add signed zeros, so every value is equal
+/// to its (a zero may differ in sign, which the tip's only use, the length of a
+/// difference of tips, cannot see), the other products and sums being the same in the
+/// same order.
+#[derive(Debug, Clone, Copy)]
+struct TableTable {
+    about: [RotaryLetter; 2],
+    pivots: [[f64; 3]; 2],
+}
+
+impl TableTable {
+    fn new(machine: &Machine) -> Option<TableTable> {
+        let [r0, r1] = [machine.rotary.first()?, machine.rotary.get(1)?];
+        (r0.on == Mount::Table && r1.on == Mount::Table).then_some(TableTable {
+            about: [r0.axis, r1.axis],
+            pivots: [r0.pivot, r1.pivot],
+        })
+    }
+
+    /// `Rᵀ v` for the turn about `about` whose sine and cosine are `s` and `c` (as
+    /// [`Machine::rotation_by`] builds it), nalgebra's `tr_mul` without its zero terms.
+    #[inline(always)]
+    fn turn_back(about: RotaryLetter, s: f64, c: f64, v: [f64; 3]) -> [f64; 3] {
+        match about {
+            RotaryLetter::A => [v[0], c * v[1] + s * v[2], c * v[2] - s * v[1]],
+            RotaryLetter::B => [c * v[0] - s * v[2], v[1], s * v[0] + c * v[2]],
+            RotaryLetter::C => [c * v[0] + s * v[1], c * v[1] - s * v[0], v[2]],
+        }
+    }
+
+    /// The tool tip at `xyz` with the rotaries' sines and cosines `sc` (listing order):
+    /// undo the base rotary, then the one it carries.
+    #[inline(always)]
+    fn tip(&self, xyz: [f64; 3], sc: [(f64, f64); 2]) -> Point3<f64> {
+        let [p0, p1] = self.pivots;
+        let d = [xyz[0] - p0[0], xyz[1] - p0[1], xyz[2] - p0[2]];
+        let t = Self::turn_back(self.about[0], sc[0].0, sc[0].1, d);
+        let q = [
+            t[0] + p0[0] - p1[0],
+            t[1] + p0[1] - p1[1],
+            t[2] + p0[2] - p1[2],
+        ];
+        let u = Self::turn_back(self.about[1], sc[1].0, sc[1].1, q);
+        Point3::new(u[0] + p1[0], u[1] + p1[1], u[2] + p1[2])
+    }
+}
 
 /// A warning shown once with its place and counted for the end of the run.
 #[derive(Debug, Default)]
@@ -134,8 +191,16 @@ pub struct Feed {
     feed_scale: f64,
     /// Where the next move starts.
     prev: Joints,
-    /// `prev` as read, when already computed under the offsets in force.
+    /// `prev` as read, when already computed under the offsets in force (between
+    /// batches: within one, [`Feed::run_batch`] carries it in a local).
     prev_read: Option<Read>,
+    /// Both rotaries on the table: the tip is worked out by [`TableTable::tip`].
+    table_table: Option<TableTable>,
+    /// A printed F of at least this many units is surely within [`FEED_PRECISION`]
+    /// (infinite when the backend prints F with more decimals than [`to_units`] scales).
+    sure_units: f64,
+    /// The scale [`to_units`] takes F's units with, `10^min(decimals.feed, 9)`.
+    units_scale: f64,
     offsets: [f64; AXIS_COUNT],
     /// The last rate emitted (for moves of zero length).
     last_rate: Option<f64>,
@@ -158,6 +223,7 @@ impl Feed {
             Some(max) => (max, max * (1.0 + 1e-9)),
             None => (f64::INFINITY, f64::INFINITY),
         });
+        let table_table = TableTable::new(&machine);
         let mut feed = Feed {
             rule: options.mode.unwrap_or(machine.controller.feed_rule),
             grid: context
@@ -175,6 +241,14 @@ impl Feed {
             offset_units: [None; 2],
             prev: Joints::default(),
             prev_read: None,
+            table_table,
+            sure_units: match context.decimals {
+                Some(d) if d.feed <= 9 => SURE_UNITS,
+                _ => f64::INFINITY,
+            },
+            units_scale: context
+                .decimals
+                .map_or(1.0, |d| 10f64.powi(i32::from(d.feed.min(9)))),
             offsets: [0.0; AXIS_COUNT],
             last_rate: None,
             missing: Counted::default(),
@@ -197,6 +271,9 @@ impl Feed {
 
     /// The five axes of `j` as the controller reads them; `None` if one is unknown or
     /// cannot be printed.
+    // Inlined always: returned through memory, the reading came back with wide loads
+    // of what narrow stores had just written (a stall on every move).
+    #[inline(always)]
     fn read(&self, j: &Joints) -> Option<Read> {
         if j.known.intersection(self.five) != self.five {
             return None;
@@ -217,15 +294,34 @@ impl Feed {
             };
             ir[k] = printed[k] - off;
         }
-        let (s0, c0) = self.sin_cos(0, ir[3], units[3]);
-        let (s1, c1) = self.sin_cos(1, ir[4], units[4]);
-        let rot = [
-            self.machine.rotation_by(0, s0, c0),
-            self.machine.rotation_by(1, s1, c1),
+        let sc = [
+            self.sin_cos(0, ir[3], units[3]),
+            self.sin_cos(1, ir[4], units[4]),
         ];
         // Only the tip: the tool axis would be computed and normalised for nothing.
-        let tip = self.machine.tip_with(&[ir[0], ir[1], ir[2]], &rot);
+        let xyz = [ir[0], ir[1], ir[2]];
+        let tip = match &self.table_table {
+            Some(tt) => tt.tip(xyz, sc),
+            None => self.chain_tip(xyz, sc),
+        };
         Some(Read { printed, tip })
+    }
+
+    /// [`Feed::read`]'s tip on a machine with a rotary on the head, by the machine's
+    /// chains.
+    #[inline(never)]
+    fn chain_tip(&self, xyz: [f64; 3], sc: [(f64, f64); 2]) -> Point3<f64> {
+        let rot = [
+            self.machine.rotation_by(0, sc[0].0, sc[0].1),
+            self.machine.rotation_by(1, sc[1].0, sc[1].1),
+        ];
+        self.machine.tip_with(&xyz, &rot)
+    }
+
+    /// [`Feed::read`] out of line, for the rare move whose start was not read before.
+    #[inline(never)]
+    fn read_start(&self) -> Option<Read> {
+        self.read(&self.prev)
     }
 
     /// Sine and cosine of rotary `i`'s physical angle at joint value `deg`, printed as
@@ -259,6 +355,8 @@ impl Feed {
     /// The new feed of a linear move from `prev` to `end` at programmed tip speed `rate`;
     /// `a` and `b` are `prev` and `end` as read (the exact joints are only needed when
     /// the printed tips are close, to tell a reorientation from a short move).
+    // Inlined always, its warnings out of line: the readings stay in registers.
+    #[inline(always)]
     fn feed_for(
         &mut self,
         span: Span,
@@ -287,7 +385,7 @@ impl Feed {
         let exact = if length > 0.01 {
             length
         } else {
-            (self.exact_tip(end) - self.exact_tip(&self.prev)).norm()
+            self.exact_length(end)
         };
         let minutes = if exact.min(length) <= ZERO_TIP {
             drot() / self.reorient_feed
@@ -298,77 +396,125 @@ impl Feed {
         // few units of XYZ correction, run at the programmed speed.
         let minutes = if minutes > 0.0 { minutes } else { dxyz / rate };
         let nist = if dxyz > 0.0 { dxyz } else { drot() };
+        // Divided once: the NIST speed is both F and the speed checked against the
+        // minimum (the compiler divided twice).
+        let nist_speed = nist / minutes;
         let mut f = match self.rule {
-            FeedRule::Nist => nist / minutes,
+            FeedRule::Nist => nist_speed,
             FeedRule::InverseTime => 1.0 / minutes,
             FeedRule::Euclidean => dxyz.hypot(drot()) / minutes,
         };
         let speed = match self.rule {
             FeedRule::Euclidean => f,
-            _ => nist / minutes,
+            _ => nist_speed,
         };
-        let min = self.machine.controller.min_speed;
-        if speed < min {
-            self.min_speed.hit(diags, || {
-                Diagnostic::warning(
-                    "feed::min-speed",
-                    format!(
-                        "this move needs {speed:.3}/min, below the controller's minimum speed of {min}: it will run faster than programmed"
-                    ),
-                )
-                .at_span(span)
-                .with_help("lower the controller's minimum speed (RepRapFirmware: M203 I) and `controller.min_speed`, or raise the programmed feed")
-            });
+        if speed < self.machine.controller.min_speed {
+            self.warn_min_speed(span, speed, diags);
         }
-        for (k, &axis) in self.axes.iter().enumerate() {
-            let (max, limit) = self.max_feed[k];
-            let v = delta[k].abs() / minutes;
-            if v > limit {
-                self.max_speed.hit(diags, || {
-                    Diagnostic::warning(
-                        "feed::max-speed",
-                        format!(
-                            "{} would move at {v:.1}/min, above its max_feed of {max}: the controller slows the move down, so it takes longer than programmed",
-                            axis.letter()
-                        ),
-                    )
-                    .at_span(span)
-                    .with_help("lower the programmed feed here; near a singular orientation a short tip move needs a large rotary turn")
-                });
-            }
+        // Counted, not branched on: on the 1M-point benchmark two moves in three have an
+        // axis over its max_feed, in no pattern a predictor learns, and each mispredicted
+        // branch waited for the whole chain of the feed. (An axis without a max_feed has an
+        // infinite limit, which no speed exceeds.)
+        let v: [f64; 5] = std::array::from_fn(|k| delta[k].abs() / minutes);
+        let over: u64 = (0..5).map(|k| u64::from(v[k] > self.max_feed[k].1)).sum();
+        // `&`, not `&&`: one branch, taken once in a run.
+        if (over > 0) & (self.max_speed.count == 0) {
+            self.warn_max_speed(span, &v, diags);
         }
-        if let Some(d) = self.decimals {
-            let scale = self.feed_scale;
-            if let Some(units) = to_units(f, d.feed) {
-                let printed = if units == 0 {
-                    1.0 / scale
-                } else {
-                    units as f64 / scale
-                };
-                let error = (printed - f).abs() / f;
-                if error > FEED_PRECISION {
-                    let wanted = f;
-                    self.precision.hit(diags, || {
-                        Diagnostic::warning(
-                            "feed::precision",
-                            format!(
-                                "F {wanted:.6} prints as {printed} at {} decimals, {:.2} % off: the move takes the wrong time",
-                                d.feed,
-                                100.0 * error
-                            ),
-                        )
-                        .at_span(span)
-                        .with_help("print F with more decimals (the backend's `decimals.feed`)")
-                    });
-                }
-                if units == 0 {
-                    // F0 is no feed at all; the slowest printable one is the nearest.
-                    f = printed;
-                }
+        self.max_speed.count += over;
+        if let Some(d) = self.decimals
+            && let Some(units) = to_units(f, d.feed)
+        {
+            // Enough units are within the precision (see SURE_UNITS): no division for the
+            // printed value and its error on the path to the next move.
+            // (`f` times the scale of `to_units` is finite, as `to_units` took it.)
+            if f * self.units_scale < self.sure_units {
+                f = self.check_precision(span, f, units, d.feed, diags);
             }
         }
         self.last_rate = Some(f);
         (mode, f)
+    }
+
+    /// The length between the tips of the exact joint values of `prev` and `end`.
+    #[cold]
+    #[inline(never)]
+    fn exact_length(&self, end: &Joints) -> f64 {
+        (self.exact_tip(end) - self.exact_tip(&self.prev)).norm()
+    }
+
+    /// The check of a printed F of `units` against `f`, which it may replace (F0 is no
+    /// feed at all; the slowest printable one is the nearest).
+    #[inline(never)]
+    fn check_precision(
+        &mut self,
+        span: Span,
+        f: f64,
+        units: i64,
+        places: u8,
+        diags: &mut Vec<Diagnostic>,
+    ) -> f64 {
+        let scale = self.feed_scale;
+        let printed = if units == 0 {
+            1.0 / scale
+        } else {
+            units as f64 / scale
+        };
+        let error = (printed - f).abs() / f;
+        if error > FEED_PRECISION {
+            let wanted = f;
+            self.precision.hit(diags, || {
+                Diagnostic::warning(
+                    "feed::precision",
+                    format!(
+                        "F {wanted:.6} prints as {printed} at {places} decimals, {:.2} % off: the move takes the wrong time",
+                        100.0 * error
+                    ),
+                )
+                .at_span(span)
+                .with_help("print F with more decimals (the backend's `decimals.feed`)")
+            });
+        }
+        if units == 0 { printed } else { f }
+    }
+
+    /// `feed::min-speed` for a move at `speed`.
+    #[cold]
+    #[inline(never)]
+    fn warn_min_speed(&mut self, span: Span, speed: f64, diags: &mut Vec<Diagnostic>) {
+        let min = self.machine.controller.min_speed;
+        self.min_speed.hit(diags, || {
+            Diagnostic::warning(
+                "feed::min-speed",
+                format!(
+                    "this move needs {speed:.3}/min, below the controller's minimum speed of {min}: it will run faster than programmed"
+                ),
+            )
+            .at_span(span)
+            .with_help("lower the controller's minimum speed (RepRapFirmware: M203 I) and `controller.min_speed`, or raise the programmed feed")
+        });
+    }
+
+    /// `feed::max-speed`, shown once, for the first of `axes` whose speed in `v` is over
+    /// its max_feed.
+    #[cold]
+    #[inline(never)]
+    fn warn_max_speed(&self, span: Span, v: &[f64; 5], diags: &mut Vec<Diagnostic>) {
+        let Some(k) = (0..5).find(|&k| v[k] > self.max_feed[k].1) else {
+            return;
+        };
+        let (axis, max, v) = (self.axes[k], self.max_feed[k].0, v[k]);
+        diags.push(
+            Diagnostic::warning(
+                "feed::max-speed",
+                format!(
+                    "{} would move at {v:.1}/min, above its max_feed of {max}: the controller slows the move down, so it takes longer than programmed",
+                    axis.letter()
+                ),
+            )
+            .at_span(span)
+            .with_help("lower the programmed feed here; near a singular orientation a short tip move needs a large rotary turn"),
+        );
     }
 }
 
@@ -383,10 +529,22 @@ impl Pass for Feed {
     }
 
     fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
-        super::edit_in_place(self, blocks, out, |pass, block, diags| {
-            pass.apply(block, diags);
-            true
-        });
+        // `edit_in_place` with an edit that keeps every block, written out so that the
+        // reading of the position travels from move to move in a local (registers and
+        // same-width spills) and not through `self.prev_read`, whose wide reload of
+        // narrow stores stalled every move.
+        if !out.blocks.is_empty() {
+            for block in blocks.drain(..) {
+                self.run(block, out);
+            }
+            return;
+        }
+        let mut prev_read = self.prev_read;
+        for block in blocks.iter_mut() {
+            prev_read = self.step(block, prev_read, out.diags);
+        }
+        self.prev_read = prev_read;
+        std::mem::swap(blocks, out.blocks);
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {
@@ -429,15 +587,26 @@ impl Pass for Feed {
 impl Feed {
     /// Sets the F of a cutting move in place and follows the position.
     fn apply(&mut self, block: &mut Block, diags: &mut Vec<Diagnostic>) {
+        self.prev_read = self.step(block, self.prev_read, diags);
+    }
+
+    /// [`Feed::apply`] with the reading of the position before `block` passed in and the
+    /// one after it returned, so that a batch carries it in registers from move to move.
+    #[inline(always)]
+    fn step(
+        &mut self,
+        block: &mut Block,
+        prev_read: Option<Read>,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Option<Read> {
         let span = block.span;
         let mut next_read = None;
         match &mut block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(end) = m.target else {
+                let Target::Joints(end) = &m.target else {
                     // A pose this late means the joints are not known.
                     self.prev = Joints::default();
-                    self.prev_read = None;
-                    return;
+                    return None;
                 };
                 if matches!(m.kind, MotionKind::Linear)
                     && !m.machine_frame
@@ -445,24 +614,20 @@ impl Feed {
                 {
                     match m.feed.rate {
                         Some(rate) if rate.is_finite() && rate > 0.0 => {
-                            let a = self.prev_read.or_else(|| self.read(&self.prev));
-                            let b = self.read(&end);
+                            let a = prev_read.or_else(|| self.read_start());
+                            let b = self.read(end);
                             if let (Some(a), Some(b)) = (a, b) {
-                                let (mode, f) = self.feed_for(span, (&a, &b), &end, rate, diags);
+                                let (mode, f) = self.feed_for(span, (&a, &b), end, rate, diags);
                                 m.feed.mode = mode;
                                 m.feed.rate = Some(f);
                             }
                             // The next move starts here: read once.
                             next_read = b;
                         }
-                        _ => self.missing.hit(diags, || {
-                            Diagnostic::error("feed::missing", "a cutting move without a feed rate")
-                                .at_span(span)
-                                .with_help("give FEDRAT (or F) before the first cutting move")
-                        }),
+                        _ => self.warn_missing(span, diags),
                     }
                 }
-                self.prev = end;
+                self.prev = *end;
                 if m.machine_frame {
                     self.prev.forget(m.written);
                     next_read = None;
@@ -481,19 +646,30 @@ impl Feed {
                 self.prev.forget(c.clobbers);
                 // A command that moves no axis leaves the reading as it is.
                 if c.clobbers.is_empty() {
-                    next_read = self.prev_read;
+                    next_read = prev_read;
                 }
             }
             BlockKind::Verbatim(v) => {
                 self.prev.forget(v.clobbers);
                 if v.clobbers.is_empty() {
-                    next_read = self.prev_read;
+                    next_read = prev_read;
                 }
             }
             // Neither moves nor changes the frame.
-            BlockKind::Dwell { .. } | BlockKind::Comment => next_read = self.prev_read,
+            BlockKind::Dwell { .. } | BlockKind::Comment => next_read = prev_read,
         }
-        self.prev_read = next_read;
+        next_read
+    }
+
+    /// `feed::missing` for a cutting move without a feed rate.
+    #[cold]
+    #[inline(never)]
+    fn warn_missing(&mut self, span: Span, diags: &mut Vec<Diagnostic>) {
+        self.missing.hit(diags, || {
+            Diagnostic::error("feed::missing", "a cutting move without a feed rate")
+                .at_span(span)
+                .with_help("give FEDRAT (or F) before the first cutting move")
+        });
     }
 }
 
@@ -615,6 +791,30 @@ mod tests {
             check_read(&mut f, v, offsets, table, 1e-12)?;
             // Without offsets, the grid is used whenever it can be.
             check_read(&mut f, v, [0.0; 5], decimals <= 4, 1e-12)?;
+        }
+
+        /// The written-out table-table tip is `Machine::tip_with`'s, value for value (a
+        /// zero may differ in sign only), on quarter turns too, where sines and cosines
+        /// are exactly zero.
+        #[test]
+        fn table_table_tip_is_tip_with(
+            preset in 0..PRESETS.len(),
+            xyz in proptest::array::uniform3(-300.0f64..300.0),
+            angles in proptest::array::uniform2(-400.0f64..400.0),
+            quarters in proptest::array::uniform2(-5i32..5),
+            (on_quarters, zero_xyz) in (proptest::bool::ANY, proptest::bool::weighted(0.2)),
+        ) {
+            let f = feed(preset, [0.0; 2], 4);
+            let Some(tt) = f.table_table else {
+                return Ok(());
+            };
+            let angles = if on_quarters { quarters.map(|q| f64::from(q) * 90.0) } else { angles };
+            let xyz = if zero_xyz { [0.0, -0.0, xyz[2]] } else { xyz };
+            let sc = [0, 1].map(|i| f.machine.physical(i, angles[i]).sin_cos());
+            let rot = [0, 1].map(|i| f.machine.rotation_by(i, sc[i].0, sc[i].1));
+            let want = f.machine.tip_with(&xyz, &rot);
+            let got = tt.tip(xyz, sc);
+            prop_assert!(got == want, "{:?} against {:?}", got, want);
         }
 
         /// Many turns out (C = 49773.1203 degrees), libm's own argument is rounded by up to
