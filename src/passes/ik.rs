@@ -575,13 +575,14 @@ impl Ik {
         let Target::Pose(pose) = &m.target else {
             return;
         };
-        let axis = pose.axis;
         let target = self.joints_at(&pose.tip, choice.angles, choice.trig, pose.extra());
+        // Taken from the pose while it is there (kept aside over the joints, the axis went
+        // to the stack and back).
+        self.last_axis = Some((choice.angles, pose.axis));
         m.target = Target::Joints(target);
         m.written = m.written.union(self.written());
         self.held = choice.held;
         self.prev = target;
-        self.last_axis = Some((choice.angles, axis));
     }
 
     /// Turns pose motion `block` into joints where it lies, when that is all it needs (a

@@ -130,6 +130,7 @@ impl UnwrapRotary {
     }
 
     /// The value `v` of `axis` takes under `rule`.
+    #[inline(always)]
     fn unwrap(&self, axis: Axis, rule: Rule, v: f64) -> f64 {
         let prev = self.prev.get(axis);
         match rule {
@@ -146,6 +147,9 @@ impl UnwrapRotary {
     }
 
     /// Unwraps the axes of `j` (all, or those not in `skip`).
+    // Inlined into `apply`: it runs for every joint move, and the call saved and restored
+    // registers around a loop of two rules.
+    #[inline(always)]
     fn unwrap_joints(&mut self, j: &mut Joints, skip: crate::ir::AxisSet) {
         for &(axis, rule) in &self.rules {
             if skip.contains(axis) {
