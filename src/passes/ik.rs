@@ -494,6 +494,27 @@ impl Ik {
         parts.join(", ")
     }
 
+    /// X, Y, Z for the rotaries at `angles` with the tip on `tip` (`trig` as for
+    /// [`Ik::joints_at`]).
+    #[inline(always)]
+    fn xyz_at(
+        &self,
+        tip: &nalgebra::Point3<f64>,
+        angles: [f64; 2],
+        trig: Option<[(f64, f64); 2]>,
+    ) -> [f64; 3] {
+        match trig {
+            Some([(s0, c0), (s1, c1)]) => {
+                let rot = [
+                    self.machine.rotation_by(0, s0, c0),
+                    self.machine.rotation_by(1, s1, c1),
+                ];
+                self.machine.linear_with(tip, &rot)
+            }
+            None => self.machine.linear(tip, angles),
+        }
+    }
+
     /// The joint vector for the rotaries at `angles` with the tip on `tip`, carrying the
     /// other known axes (those of `extra` but X, Y, Z and the rotaries, else the previous
     /// joints'); `trig`, when known, is the sine and cosine of both rotaries' physical
@@ -506,16 +527,7 @@ impl Ik {
         trig: Option<[(f64, f64); 2]>,
         extra: &Joints,
     ) -> Joints {
-        let xyz = match trig {
-            Some([(s0, c0), (s1, c1)]) => {
-                let rot = [
-                    self.machine.rotation_by(0, s0, c0),
-                    self.machine.rotation_by(1, s1, c1),
-                ];
-                self.machine.linear_with(tip, &rot)
-            }
-            None => self.machine.linear(tip, angles),
-        };
+        let xyz = self.xyz_at(tip, angles, trig);
         // Value by value, one select each, with no store at a varying index: the joints
         // are then stored whole (into the block and as the previous joints) straight from
         // registers; written piecewise on the stack and copied, each copy waited on store
@@ -575,14 +587,37 @@ impl Ik {
         let Target::Pose(pose) = &m.target else {
             return;
         };
-        let target = self.joints_at(&pose.tip, choice.angles, choice.trig, pose.extra());
-        // Taken from the pose while it is there (kept aside over the joints, the axis went
-        // to the stack and back).
-        self.last_axis = Some((choice.angles, pose.axis));
-        m.target = Target::Joints(target);
+        if pose.extra_axes.is_some() {
+            let target = self.joints_at(&pose.tip, choice.angles, choice.trig, pose.extra());
+            self.last_axis = Some((choice.angles, pose.axis));
+            m.target = Target::Joints(target);
+            self.prev = target;
+        } else {
+            // The usual pose without other axes: the previous joints (stored a block ago)
+            // copied whole into the block, then the new values stored one by one into both
+            // copies. Nothing just stored is loaded again in another width, and no value
+            // needs a select.
+            let xyz = self.xyz_at(&pose.tip, choice.angles, choice.trig);
+            // Taken from the pose while it is there (kept aside, it went to the stack).
+            self.last_axis = Some((choice.angles, pose.axis));
+            let known = self.prev.known.union(self.written());
+            let [i0, i1] = self.axes.map(Axis::index);
+            let put = |j: &mut Joints| {
+                j.values[0] = xyz[0];
+                j.values[1] = xyz[1];
+                j.values[2] = xyz[2];
+                j.values[i0] = choice.angles[0];
+                j.values[i1] = choice.angles[1];
+                j.known = known;
+            };
+            m.target = Target::Joints(self.prev);
+            if let Target::Joints(j) = &mut m.target {
+                put(j);
+            }
+            put(&mut self.prev);
+        }
         m.written = m.written.union(self.written());
         self.held = choice.held;
-        self.prev = target;
     }
 
     /// Turns pose motion `block` into joints where it lies, when that is all it needs (a
