@@ -83,9 +83,12 @@ impl Verifier {
     }
 }
 
+// Inlined, the search for the message apart: every block of every run comes here, and a
+// call saved and restored registers around a sweep of a few dozen instructions.
+#[inline(always)]
 fn check_joints(j: &Joints) -> Result<(), String> {
-    // Every block of every run comes here: one branch-free sweep, and the axis-by-axis
-    // search for the message only when something is wrong.
+    // One branch-free sweep, and the axis-by-axis search for the message only when
+    // something is wrong.
     let mut wrong = false;
     for (k, v) in j.values.iter().enumerate() {
         wrong |= !v.is_finite() | ((j.known.0 >> k) & 1 == 0 && *v != 0.0);
@@ -93,6 +96,13 @@ fn check_joints(j: &Joints) -> Result<(), String> {
     if !wrong {
         return Ok(());
     }
+    joints_error(j)
+}
+
+/// The message of [`check_joints`] for joints that break an invariant.
+#[cold]
+#[inline(never)]
+fn joints_error(j: &Joints) -> Result<(), String> {
     for a in Axis::ALL {
         let v = j.values[a.index()];
         if !v.is_finite() {

@@ -84,6 +84,41 @@ pub fn ceil(x: f64) -> f64 {
     (if r < x { r + 1.0 } else { r }).copysign(x)
 }
 
+/// Below this size a quotient by 360 and a product with `1 / 360` are surely within
+/// [`NOT_A_TIE`] of each other (both are within 2.3e-16 of the true quotient, relative).
+const FAST_TURNS: f64 = 1e6;
+
+/// Farther than this from a half turn, the product with `1 / 360` rounds as the quotient.
+const NOT_A_TIE: f64 = 1e-9;
+
+/// `round(d / 360.0)`, exactly, with a multiplication in place of the division where the
+/// two cannot round apart: every CL point rounds several angle differences to whole
+/// turns, each on the path to the next, and a `divsd` takes three times a `mulsd`.
+///
+/// `d * (1 / 360)` and `d / 360` both lie within 2.3e-16 relative of the true quotient;
+/// more than [`NOT_A_TIE`] from a half-integer (and below [`FAST_TURNS`]) both round to
+/// the same whole number, with the same sign (that of `d`, zeros too). Nearer a
+/// half-integer (a tie, such as `d = 180`), beyond it and for NaN the division decides.
+///
+/// ```
+/// use ncpost::machine::angle::{round, round_turns};
+/// for d in [180.0, -180.0, 540.0, 179.99, -0.0, 1e9] {
+///     assert_eq!(round_turns(d).to_bits(), round(d / 360.0).to_bits());
+/// }
+/// ```
+#[inline(always)]
+pub fn round_turns(d: f64) -> f64 {
+    let q = d * (1.0 / 360.0);
+    let a = q.abs();
+    // Nearest, ties to even (exact below 2^52); `a - r` is exact, in [-0.5, 0.5].
+    let r = (a + TWO_52) - TWO_52;
+    // Predicted: real paths are never this near a half turn. NaN takes the division.
+    if a < FAST_TURNS && (a - r).abs() < 0.5 - NOT_A_TIE {
+        return r.copysign(q);
+    }
+    round(d / 360.0)
+}
+
 /// The angle `v + 360 k` nearest `target` (degrees).
 ///
 /// ```
@@ -92,7 +127,29 @@ pub fn ceil(x: f64) -> f64 {
 /// ```
 #[inline]
 pub fn near_turn(v: f64, target: f64) -> f64 {
-    v + 360.0 * round((target - v) / 360.0)
+    v + 360.0 * round_turns(target - v)
+}
+
+/// [`near_turn`] for a `v` that is usually within a half turn of `target` already (a
+/// value continued from the previous one): the same value, but in that case without the
+/// rounding on the path from `target` to the result.
+///
+/// ```
+/// use ncpost::machine::angle::{near_turn, near_turn_close};
+/// for (v, t) in [(10.0, 20.0), (10.0, 700.0), (-0.0, 0.0), (0.0, -0.0), (-0.0, -1.0)] {
+///     assert_eq!(near_turn_close(v, t).to_bits(), near_turn(v, t).to_bits());
+/// }
+/// ```
+#[inline(always)]
+pub fn near_turn_close(v: f64, target: f64) -> f64 {
+    let d = target - v;
+    // Below 179 degrees `round_turns(d)` is a zero with the sign of `d` (the product is
+    // under 0.5 in size), and 360 times it is the same zero.
+    if d.abs() < 179.0 {
+        v + 0.0f64.copysign(d)
+    } else {
+        near_turn(v, target)
+    }
 }
 
 /// Tolerance of a rotary limit (degrees): a value this far outside still counts as in.
@@ -110,7 +167,7 @@ pub const LIMIT_SLACK: f64 = 1e-9;
 #[inline]
 pub fn turn_within(v: f64, lo: f64, hi: f64, prev: Option<f64>) -> Option<f64> {
     let (low, high) = (lo - LIMIT_SLACK, hi + LIMIT_SLACK);
-    let want = prev.map_or(0.0, |p| round((p - v) / 360.0));
+    let want = prev.map_or(0.0, |p| round_turns(p - v));
     // The usual case, `v` in range and the nearest turn: then `kmin <= 0 <= kmax` below
     // (a difference of floats has the sign of the true one) and the clamp keeps `want`,
     // so this is the same value without the two divisions.
@@ -136,7 +193,7 @@ pub fn turn_within(v: f64, lo: f64, hi: f64, prev: Option<f64>) -> Option<f64> {
 /// ```
 #[inline]
 pub fn near_turn_and_within(v: f64, lo: f64, hi: f64, prev: f64) -> (f64, Option<f64>) {
-    let want = round((prev - v) / 360.0);
+    let want = round_turns(prev - v);
     let near = v + 360.0 * want;
     // turn_within's usual case, where it takes this same value.
     if want == 0.0 && v >= lo - LIMIT_SLACK && v <= hi + LIMIT_SLACK {
@@ -291,6 +348,45 @@ mod tests {
                 within.map(f64::to_bits),
                 turn_within(v, lo, hi, Some(prev)).map(f64::to_bits)
             );
+        }
+
+        /// The product rounds as the quotient, at and around half turns too.
+        #[test]
+        fn round_turns_is_round_of_the_quotient(
+            k in -3000i64..3000,
+            ulps in -64i64..64,
+            scale in 0i32..40,
+            x in proptest::num::f64::ANY,
+            which in 0u8..3,
+        ) {
+            let d = match which {
+                // A half turn and its neighbours, a few ulps either way.
+                0 => {
+                    let t = (k as f64) * 360.0 + 180.0;
+                    f64::from_bits((t.to_bits() as i64 + ulps) as u64)
+                }
+                // Whole turns, where the quotient is an integer.
+                1 => f64::from_bits((((k as f64) * 360.0).to_bits() as i64 + ulps) as u64),
+                _ => x * 2f64.powi(-scale),
+            };
+            prop_assert!(same(round_turns(d), round(d / 360.0)), "{d}");
+        }
+
+        /// The shortcut is `near_turn`, zeros' signs and all.
+        #[test]
+        fn near_turn_close_is_near_turn(
+            v in -1000.0f64..1000.0,
+            d in -400.0f64..400.0,
+            zero in 0u8..6,
+        ) {
+            let (v, t) = match zero {
+                1 => (-0.0, 0.0),
+                2 => (-0.0, -0.0),
+                3 => (0.0, -0.0),
+                4 => (-0.0, d),
+                _ => (v, v + d),
+            };
+            prop_assert!(same(near_turn_close(v, t), near_turn(v, t)), "{v} {t}");
         }
 
         #[test]

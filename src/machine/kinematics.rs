@@ -122,6 +122,30 @@ impl Solutions {
         self.trig[k]
     }
 
+    /// The first two orientations, `None` past the count: for a caller that inlines
+    /// [`Machine::inverse_inline`] and keeps everything in registers (a slice of them, or
+    /// an index that varies, would need them in memory).
+    #[inline(always)]
+    pub(crate) fn first_two(&self) -> (Option<&Orientation>, Option<&Orientation>) {
+        (
+            (self.len > 0).then_some(&self.found[0]),
+            (self.len > 1).then_some(&self.found[1]),
+        )
+    }
+
+    /// [`Solutions::sin_cos`] of the second orientation when `second`, else of the first,
+    /// picked value by value (no load at a varying address, see
+    /// [`Solutions::first_two`]).
+    #[inline(always)]
+    pub(crate) fn sin_cos_of(&self, second: bool) -> [(f64, f64); 2] {
+        let [a, b] = self.trig;
+        let pick = |x: f64, y: f64| if second { y } else { x };
+        [
+            (pick(a[0].0, b[0].0), pick(a[0].1, b[0].1)),
+            (pick(a[1].0, b[1].0), pick(a[1].1, b[1].1)),
+        ]
+    }
+
     fn push(&mut self, o: Orientation, trig: [(f64, f64); 2]) {
         self.found[self.len] = o;
         self.trig[self.len] = trig;
@@ -477,6 +501,18 @@ impl Machine {
     /// and may differ from `atan2` in the last bit or two. The sines and cosines come from
     /// the `atan2` arguments.
     pub fn inverse_with(&self, layout: &InverseLayout, axis: Unit<Vector3<f64>>) -> Solutions {
+        self.inverse_inline(layout, axis)
+    }
+
+    /// [`Machine::inverse_with`], always inlined: `ik` solves every block, and a returned
+    /// [`Solutions`] (144 bytes) is stored piece by piece and loaded again in other widths,
+    /// which stalls on store forwarding; inlined, the values stay in registers.
+    #[inline(always)]
+    pub(crate) fn inverse_inline(
+        &self,
+        layout: &InverseLayout,
+        axis: Unit<Vector3<f64>>,
+    ) -> Solutions {
         let (i1, i2, axis_is_p) = (layout.w1, layout.w2, layout.axis_is_p);
         // The built-in machines' layouts get copies with the coordinate indices, the
         // rotaries of α and β and their signs constant (every product picks components by

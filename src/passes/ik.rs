@@ -40,9 +40,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{
-    Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Pose, Target,
-};
+use crate::ir::{Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Target};
 use crate::machine::angle::{LIMIT_SLACK, near_turn, near_turn_and_within, turn_within};
 use crate::machine::{InverseLayout, Machine, Orientation, Prefer};
 
@@ -231,15 +229,18 @@ impl Ik {
     fn cost(&self, angles: [f64; 2], prev: [Option<f64>; 2]) -> (f64, f64) {
         // Written out (a fold over the known rotaries kept its state in memory): the
         // largest change from 0 up, the sum from 0 up, rotary 0 first.
+        // `m` is never NaN (it starts at 0 and takes only a larger `d`) and `d` never -0,
+        // so a comparison gives `f64::max` (which returned the other for a NaN) without
+        // its NaN test: one `maxsd`.
         let (mut m, mut s) = (0.0, 0.0);
         if let Some(p) = prev[0] {
             let d = (angles[0] - p).abs();
-            m = f64::max(m, d);
+            m = if d > m { d } else { m };
             s += d;
         }
         if let Some(p) = prev[1] {
             let d = (angles[1] - p).abs();
-            m = f64::max(m, d);
+            m = if d > m { d } else { m };
             s += d;
         }
         (m, s)
@@ -303,6 +304,10 @@ impl Ik {
     /// end points alone can pick the other branch when a move turns the axis far: from
     /// A20 C240 to a 70 deg tilt, A-70 C160 is "nearer" than A70 C340, but getting there
     /// swings the tool through vertical, off the programmed path.
+    // Inlined, the far turns walked apart (`walk`): returned from a call, the previous
+    // values came back through memory in other widths than they were stored in, a
+    // store-forwarding stall on nearly every block.
+    #[inline(always)]
     fn walked(&self, axis: Unit<Vector3<f64>>, prev: [Option<f64>; 2]) -> [Option<f64>; 2] {
         let [Some(p0), Some(p1)] = prev else {
             return prev;
@@ -320,17 +325,30 @@ impl Ik {
         if from.dot(&axis) >= self.within_step_cos {
             return prev;
         }
+        match self.walk(from, axis, [p0, p1]) {
+            Some([a0, a1]) => [Some(a0), Some(a1)],
+            None => prev,
+        }
+    }
+
+    /// [`Ik::walked`] from tool axis `from` at rotary values `[p0, p1]` to `axis`, when it
+    /// turns far enough to look: the values reached, or `None` to keep `[p0, p1]`.
+    #[inline(never)]
+    fn walk(
+        &self,
+        from: Unit<Vector3<f64>>,
+        axis: Unit<Vector3<f64>>,
+        [p0, p1]: [f64; 2],
+    ) -> Option<[f64; 2]> {
         let turn = from.angle(&axis).to_degrees();
         if turn <= WALK_STEP || turn > 180.0 - WALK_STEP {
-            return prev;
+            return None;
         }
         let steps = (turn / WALK_STEP).ceil() as usize;
         let mut cur = [p0, p1];
         for s in 1..=steps {
             let t = s as f64 / steps as f64;
-            let Some(ax) = from.try_slerp(&axis, t, 1e-12) else {
-                return prev;
-            };
+            let ax = from.try_slerp(&axis, t, 1e-12)?;
             let mut best: Option<([f64; 2], (f64, f64))> = None;
             for o in self.machine.inverse_with(&self.layout, ax).orientations() {
                 let mut a = [
@@ -347,13 +365,17 @@ impl Ik {
             }
             match best {
                 Some((a, _)) => cur = a,
-                None => return prev,
+                None => return None,
             }
         }
-        [Some(cur[0]), Some(cur[1])]
+        Some(cur)
     }
 
     /// The rotary values for tool axis `axis`; `None` when no orientation is reachable.
+    // Inlined, with the solver, into the block edit: the solutions and the choice then
+    // stay in registers instead of being stored and loaded again in other widths (a
+    // store-forwarding stall per block).
+    #[inline(always)]
     fn choose(&self, axis: Unit<Vector3<f64>>, cutting: bool) -> Option<Choice> {
         let actual = self.prev_angles();
         let prev = if cutting {
@@ -361,9 +383,12 @@ impl Ik {
         } else {
             actual
         };
-        let solutions = self.machine.inverse_with(&self.layout, axis);
-        let sols = solutions.orientations();
-        let free = sols.iter().find_map(|o| o.free);
+        let solutions = self.machine.inverse_inline(&self.layout, axis);
+        let (first, second) = solutions.first_two();
+        // The first orientation's free rotary, else the second's.
+        let free = first
+            .and_then(|o| o.free)
+            .or_else(|| second.and_then(|o| o.free));
         if free.is_some() || solutions.singularity_cos > self.cone_cos {
             let k = free.unwrap_or_else(|| self.machine.singular_rotary(axis));
             if let Some(pk) = prev[k] {
@@ -387,11 +412,7 @@ impl Ik {
         // one is clearly nearer (or, reachable, ties and alone has the preferred sign).
         // Written out for the two there can be rather than looped over, so that neither
         // is kept in memory.
-        let (first, second) = match sols {
-            [] => return None,
-            [a] => (a, None),
-            [a, b, ..] => (a, Some(b)),
-        };
+        let first = first?;
         let one = self.candidate(first, prev);
         let mut nearest = (one.unlimited, one.unlimited_cost);
         let mut best = one.limited.map(|(angles, c)| (angles, c, 0));
@@ -425,7 +446,7 @@ impl Ik {
             angles,
             held: None,
             flip,
-            trig: Some(solutions.sin_cos(k)),
+            trig: Some(solutions.sin_cos_of(k == 1)),
         })
     }
 
@@ -473,16 +494,16 @@ impl Ik {
         parts.join(", ")
     }
 
-    /// The joint vector for the rotaries at `angles` with the tip on `tip`, carrying the
-    /// other known axes; `trig`, when known, is the sine and cosine of both rotaries'
-    /// physical angles (the rotations then need no sin_cos of the degrees).
-    fn joints_at(
+    /// X, Y, Z for the rotaries at `angles` with the tip on `tip` (`trig` as for
+    /// [`Ik::joints_at`]).
+    #[inline(always)]
+    fn xyz_at(
         &self,
         tip: &nalgebra::Point3<f64>,
         angles: [f64; 2],
         trig: Option<[(f64, f64); 2]>,
-    ) -> Joints {
-        let xyz = match trig {
+    ) -> [f64; 3] {
+        match trig {
             Some([(s0, c0), (s1, c1)]) => {
                 let rot = [
                     self.machine.rotation_by(0, s0, c0),
@@ -491,16 +512,47 @@ impl Ik {
                 self.machine.linear_with(tip, &rot)
             }
             None => self.machine.linear(tip, angles),
-        };
-        let mut j = self.prev;
-        j.set(Axis::X, xyz[0]);
-        j.set(Axis::Y, xyz[1]);
-        j.set(Axis::Z, xyz[2]);
-        j.set(self.axes[0], angles[0]);
-        j.set(self.axes[1], angles[1]);
-        j
+        }
     }
 
+    /// The joint vector for the rotaries at `angles` with the tip on `tip`, carrying the
+    /// other known axes (those of `extra` but X, Y, Z and the rotaries, else the previous
+    /// joints'); `trig`, when known, is the sine and cosine of both rotaries' physical
+    /// angles (the rotations then need no sin_cos of the degrees).
+    #[inline(always)]
+    fn joints_at(
+        &self,
+        tip: &nalgebra::Point3<f64>,
+        angles: [f64; 2],
+        trig: Option<[(f64, f64); 2]>,
+        extra: &Joints,
+    ) -> Joints {
+        let xyz = self.xyz_at(tip, angles, trig);
+        // Value by value, one select each, with no store at a varying index: the joints
+        // are then stored whole (into the block and as the previous joints) straight from
+        // registers; written piecewise on the stack and copied, each copy waited on store
+        // forwarding. The second rotary last, as if set after the first.
+        let [i0, i1] = self.axes.map(Axis::index);
+        let values = std::array::from_fn(|k| {
+            if k < 3 {
+                xyz[k]
+            } else if k == i1 {
+                angles[1]
+            } else if k == i0 {
+                angles[0]
+            } else if extra.known.contains(Axis::ALL[k]) {
+                extra.values[k]
+            } else {
+                self.prev.values[k]
+            }
+        });
+        Joints {
+            values,
+            known: self.prev.known.union(extra.known).union(self.written()),
+        }
+    }
+
+    #[inline(always)]
     fn written(&self) -> AxisSet {
         let mut w = AxisSet::XYZ;
         w.insert(self.axes[0]);
@@ -528,31 +580,44 @@ impl Ik {
         (swing > self.options.singular_jump).then_some((k, swing))
     }
 
-    /// The joints for `pose` with the rotaries at `choice`, carrying the pose's other axes.
-    fn target(&self, pose: &Pose, choice: &Choice) -> Joints {
-        let mut target = self.joints_at(&pose.tip, choice.angles, choice.trig);
-        let extra = pose.extra();
-        for a in extra.known.iter() {
-            if !AxisSet::XYZ.contains(a) && !self.axes.contains(&a) {
-                target.set(a, extra.values[a.index()]);
-            }
-        }
-        target
-    }
-
     /// Makes pose motion `m` the joints of `choice` (which [`Ik::choose`] gave for its
-    /// pose) and takes them as the previous joints.
+    /// pose), carrying the pose's other axes, and takes them as the previous joints.
+    #[inline(always)]
     fn apply(&mut self, m: &mut Motion, choice: &Choice) {
         let Target::Pose(pose) = &m.target else {
             return;
         };
-        let axis = pose.axis;
-        let target = self.target(pose, choice);
-        m.target = Target::Joints(target);
+        if pose.extra_axes.is_some() {
+            let target = self.joints_at(&pose.tip, choice.angles, choice.trig, pose.extra());
+            self.last_axis = Some((choice.angles, pose.axis));
+            m.target = Target::Joints(target);
+            self.prev = target;
+        } else {
+            // The usual pose without other axes: the previous joints (stored a block ago)
+            // copied whole into the block, then the new values stored one by one into both
+            // copies. Nothing just stored is loaded again in another width, and no value
+            // needs a select.
+            let xyz = self.xyz_at(&pose.tip, choice.angles, choice.trig);
+            // Taken from the pose while it is there (kept aside, it went to the stack).
+            self.last_axis = Some((choice.angles, pose.axis));
+            let known = self.prev.known.union(self.written());
+            let [i0, i1] = self.axes.map(Axis::index);
+            let put = |j: &mut Joints| {
+                j.values[0] = xyz[0];
+                j.values[1] = xyz[1];
+                j.values[2] = xyz[2];
+                j.values[i0] = choice.angles[0];
+                j.values[i1] = choice.angles[1];
+                j.known = known;
+            };
+            m.target = Target::Joints(self.prev);
+            if let Target::Joints(j) = &mut m.target {
+                put(j);
+            }
+            put(&mut self.prev);
+        }
         m.written = m.written.union(self.written());
         self.held = choice.held;
-        self.prev = target;
-        self.last_axis = Some((choice.angles, axis));
     }
 
     /// Turns pose motion `block` into joints where it lies, when that is all it needs (a
@@ -693,8 +758,8 @@ impl Ik {
                     let from = self.machine.forward(&xyz0, angles0);
                     let up = from.tip + from.axis.into_inner() * d;
                     let above = pose.tip + pose_axis.into_inner() * d;
-                    let retract = self.joints_at(&up, angles0, None);
-                    let turn = self.joints_at(&above, choice.angles, choice.trig);
+                    let retract = self.joints_at(&up, angles0, None, &Joints::NONE);
+                    let turn = self.joints_at(&above, choice.angles, choice.trig, &Joints::NONE);
                     let step = |kind: MotionKind, target: Joints| {
                         Block::new(
                             block.span,
@@ -788,7 +853,7 @@ impl Pass for Ik {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ir::{Command, Feed, FeedMode, Span};
+    use crate::ir::{Command, Feed, FeedMode, Pose, Span};
     use nalgebra::Point3;
     use proptest::prelude::*;
 

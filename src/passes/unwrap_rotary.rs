@@ -23,7 +23,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, Block, BlockKind, Joints, MotionKind, OffsetChange, OffsetCode, Span, Target,
 };
-use crate::machine::angle::{LIMIT_SLACK, near_turn, round, turn_within, wrap180};
+use crate::machine::angle::{LIMIT_SLACK, near_turn_close, round, turn_within, wrap180};
 
 /// Options of `unwrap-rotary`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -130,10 +130,12 @@ impl UnwrapRotary {
     }
 
     /// The value `v` of `axis` takes under `rule`.
+    #[inline(always)]
     fn unwrap(&self, axis: Axis, rule: Rule, v: f64) -> f64 {
         let prev = self.prev.get(axis);
         match rule {
-            Rule::Cyclic => prev.map_or(v, |p| near_turn(v, p)),
+            // `ik`'s values are already continuous: usually no turn to round.
+            Rule::Cyclic => prev.map_or(v, |p| near_turn_close(v, p)),
             Rule::Limited(lo, hi) => {
                 if (lo - LIMIT_SLACK..=hi + LIMIT_SLACK).contains(&v) {
                     return v;
@@ -145,6 +147,9 @@ impl UnwrapRotary {
     }
 
     /// Unwraps the axes of `j` (all, or those not in `skip`).
+    // Inlined into `apply`: it runs for every joint move, and the call saved and restored
+    // registers around a loop of two rules.
+    #[inline(always)]
     fn unwrap_joints(&mut self, j: &mut Joints, skip: crate::ir::AxisSet) {
         for &(axis, rule) in &self.rules {
             if skip.contains(axis) {
@@ -306,14 +311,19 @@ impl UnwrapRotary {
                 } else {
                     crate::ir::AxisSet::EMPTY
                 };
-                let before = self.prev;
-                self.unwrap_joints(j, skip);
-                self.prev.forget(skip);
-                let j = *j;
+                // Neither the joints before (for a re-basing rapid only) nor after are
+                // copied otherwise: a copy loads the values just stored one by one in
+                // other widths, which waits on store forwarding.
                 if self.options.rebase && matches!(m.kind, MotionKind::Rapid) && !m.machine_frame {
-                    rebase = self.rebase(&before, &j);
+                    let before = self.prev;
+                    self.unwrap_joints(j, skip);
+                    self.prev.forget(skip);
+                    rebase = self.rebase(&before, j);
+                } else {
+                    self.unwrap_joints(j, skip);
+                    self.prev.forget(skip);
                 }
-                self.check_float32(&j, block.span, diags);
+                self.check_float32(j, block.span, diags);
             }
             BlockKind::Offset(change) => self.offset(change),
             BlockKind::Command(c) => self.prev.forget(c.clobbers),
