@@ -117,6 +117,23 @@ pub(super) struct Lowerer {
     args: Vec<Arg>,
     /// Triplet format state, when the input is in it.
     triplet: Option<Triplet>,
+    /// The plain `GOTO/` lines [`Lowerer::plain_gotos`] has read and not yet lowered.
+    ahead: Box<[Ahead; READ_AHEAD]>,
+}
+
+/// How many plain `GOTO/` lines [`Lowerer::plain_gotos`] reads before it lowers them.
+const READ_AHEAD: usize = 32;
+
+/// A plain `GOTO/` line read ahead: its values, then its pose.
+#[derive(Debug, Clone, Copy, Default)]
+struct Ahead {
+    v: [f64; 6],
+    n: usize,
+    span: Span,
+    /// Where the line's `\n` ends in the chunk.
+    end: usize,
+    /// The tip, then the axis.
+    pose: [f64; 6],
 }
 
 /// The numbers and words of a statement's arguments.
@@ -208,6 +225,25 @@ pub(super) fn unit(v: Vector3<f64>) -> Option<Unit<Vector3<f64>>> {
     }
     let u = Unit::new_normalize(v / m);
     u.iter().all(|c| c.is_finite()).then_some(u)
+}
+
+/// The tip and axis of a plain `GOTO/` with the `n` values `v`, the axis in force being
+/// `axis` and the length unit `scale` mm; `None` when the grammar path must read it: a
+/// wrong count, a zero axis, a point out of range.
+#[inline(always)]
+fn plain_pose(
+    v: &[f64; 6],
+    n: usize,
+    axis: Unit<Vector3<f64>>,
+    scale: f64,
+) -> Option<(Point3<f64>, Unit<Vector3<f64>>)> {
+    let axis = match n {
+        3 => axis,
+        6 => unit(Vector3::new(v[3], v[4], v[5]))?,
+        _ => return None,
+    };
+    let tip = Point3::new(v[0], v[1], v[2]) * scale;
+    tip.iter().all(|c| c.is_finite()).then_some((tip, axis))
 }
 
 /// A number as a G-code word value: at most 4 decimals, no trailing zeros.
@@ -314,6 +350,7 @@ impl Lowerer {
             arc: None,
             args: Vec::with_capacity(16),
             triplet: None,
+            ahead: Box::new([Ahead::default(); READ_AHEAD]),
         }
     }
 
@@ -511,6 +548,11 @@ impl Lowerer {
     /// `GOTO/` (or is over the line limit, or is not whole in `chunk`) or `out` holds
     /// `want` blocks; returns the bytes and the lines taken. Reading the lines from the
     /// buffer saves finding each line's end first: the reader finds it.
+    ///
+    /// The lines go in three steps of up to [`READ_AHEAD`] lines each: their values, then
+    /// their poses, then their blocks. No number waits for the divisions of the one
+    /// before, nor a pose for the next line's reading, and the blocks are written where
+    /// they go in `out` (pushed one by one, each was built on the stack and copied).
     pub(super) fn plain_gotos(
         &mut self,
         chunk: &[u8],
@@ -524,27 +566,72 @@ impl Lowerer {
             return (0, 0);
         }
         while out.len() < want {
-            let Some(rest) = chunk.get(taken..) else {
+            // Values: nothing changes yet.
+            let room = (want - out.len()).min(READ_AHEAD);
+            let mut read = 0;
+            let mut at = taken;
+            let mut whole = true;
+            while read < room {
+                let a = &mut self.ahead[read];
+                let Some(rest) = chunk.get(at..) else {
+                    whole = false;
+                    break;
+                };
+                let Some((n, newline)) = scan::goto::<true>(rest, &mut a.v) else {
+                    whole = false;
+                    break;
+                };
+                let content = crate::front::content_len(rest, newline);
+                if content > self.options.max_line_len {
+                    whole = false;
+                    break;
+                }
+                a.n = n;
+                a.span = Span {
+                    offset: offset + at as u64,
+                    len: content as u32,
+                    line: line + lines + read as u32 + 1,
+                };
+                at += newline + 1;
+                a.end = at;
+                read += 1;
+            }
+            // Poses, until a line needs the grammar path.
+            let mut axis = self.axis;
+            let mut posed = 0usize;
+            for a in &mut self.ahead[..read] {
+                let Some((tip, to)) = plain_pose(&a.v, a.n, axis, self.scale) else {
+                    break;
+                };
+                a.pose = [tip.x, tip.y, tip.z, to.x, to.y, to.z];
+                axis = to;
+                posed += 1;
+            }
+            let Some(last) = posed.checked_sub(1).map(|i| self.ahead[i]) else {
                 break;
             };
-            let mut v = [0.0f64; 6];
-            let Some((n, newline)) = scan::goto::<true>(rest, &mut v) else {
-                break;
+            // Blocks.
+            let first = if std::mem::replace(&mut self.rapid_next, false) {
+                MotionKind::Rapid
+            } else {
+                MotionKind::Linear
             };
-            let content = crate::front::content_len(rest, newline);
-            if content > self.options.max_line_len {
+            let feed = self.feed;
+            out.extend(self.ahead[..posed].iter().enumerate().map(|(i, a)| {
+                let kind = if i == 0 { first } else { MotionKind::Linear };
+                let [x, y, z, i, j, k] = a.pose;
+                let tip = Point3::new(x, y, z);
+                let axis = Unit::new_unchecked(Vector3::new(i, j, k));
+                motion_block(a.span, kind, tip, axis, feed)
+            }));
+            self.axis = axis;
+            self.pos = Some(Point3::new(last.pose[0], last.pose[1], last.pose[2]));
+            self.after_goto = true;
+            taken = last.end;
+            lines += posed as u32;
+            if !whole || posed < read {
                 break;
             }
-            let span = Span {
-                offset: offset + taken as u64,
-                len: content as u32,
-                line: line + lines + 1,
-            };
-            if !self.goto_values(&v, n, span, out) {
-                break;
-            }
-            taken += newline + 1;
-            lines += 1;
         }
         (taken, lines)
     }
@@ -558,18 +645,9 @@ impl Lowerer {
     /// when the grammar path must read it: a wrong count, a zero axis, a point out of range.
     #[inline(always)]
     fn goto_values(&mut self, v: &[f64; 6], n: usize, span: Span, out: &mut Vec<Block>) -> bool {
-        let axis = match n {
-            3 => self.axis,
-            6 => match unit(Vector3::new(v[3], v[4], v[5])) {
-                Some(a) => a,
-                None => return false,
-            },
-            _ => return false,
-        };
-        let tip = Point3::new(v[0], v[1], v[2]) * self.scale;
-        if !tip.iter().all(|c| c.is_finite()) {
+        let Some((tip, axis)) = plain_pose(v, n, self.axis, self.scale) else {
             return false;
-        }
+        };
         self.axis = axis;
         let kind = if std::mem::replace(&mut self.rapid_next, false) {
             MotionKind::Rapid
