@@ -218,13 +218,25 @@ impl<'a> Args<'a> {
 }
 
 /// The unit vector along `v`, or `None` for a zero (or not finite) vector.
+///
+/// `v` is scaled by its largest magnitude `m` first, so no square overflows or
+/// underflows, then divided by its norm: [`Unit::new_normalize`]'s steps. With `m` finite
+/// every scaled component that is a number lies in [-1, 1] and one is ±1, so the norm
+/// lies in [1, √3] and every quotient is finite, unless a component is NaN (the maximum
+/// passes over a NaN first component): then the norm is NaN. Testing the norm is testing
+/// the three quotients.
 pub(super) fn unit(v: Vector3<f64>) -> Option<Unit<Vector3<f64>>> {
     let m = v.amax();
     if !(m.is_finite() && m > 1e-12) {
         return None;
     }
-    let u = Unit::new_normalize(v / m);
-    u.iter().all(|c| c.is_finite()).then_some(u)
+    let mut u = v / m;
+    let n = u.norm();
+    if n.is_nan() {
+        return None;
+    }
+    u.unscale_mut(n);
+    Some(Unit::new_unchecked(u))
 }
 
 /// The tip and axis of a plain `GOTO/` with the `n` values `v`, the axis in force being
@@ -243,7 +255,8 @@ fn plain_pose(
         _ => return None,
     };
     let tip = Point3::new(v[0], v[1], v[2]) * scale;
-    tip.iter().all(|c| c.is_finite()).then_some((tip, axis))
+    // `c - c` is 0 for a finite `c`, NaN for the others.
+    ((tip.x - tip.x) + (tip.y - tip.y) + (tip.z - tip.z) == 0.0).then_some((tip, axis))
 }
 
 /// A number as a G-code word value: at most 4 decimals, no trailing zeros.
@@ -1766,5 +1779,76 @@ mod tests {
         assert!((u.norm() - 1.0).abs() < 1e-12);
         let u = unit(Vector3::new(1e300, 1e300, 0.0)).unwrap();
         assert!((u.norm() - 1.0).abs() < 1e-12);
+    }
+
+    /// [`unit`] as it was written first: the reference for its bits.
+    fn unit_reference(v: Vector3<f64>) -> Option<Unit<Vector3<f64>>> {
+        let m = v.amax();
+        if !(m.is_finite() && m > 1e-12) {
+            return None;
+        }
+        let u = Unit::new_normalize(v / m);
+        u.iter().all(|c| c.is_finite()).then_some(u)
+    }
+
+    fn same_unit(v: Vector3<f64>) -> Result<(), proptest::test_runner::TestCaseError> {
+        let bits = |u: Option<Unit<Vector3<f64>>>| u.map(|u| u.map(f64::to_bits));
+        proptest::prop_assert_eq!(bits(unit(v)), bits(unit_reference(v)), "{:?}", v);
+        Ok(())
+    }
+
+    /// A component as CL files and worse inputs have them: printed unit-vector parts,
+    /// zeros of both signs, tiny, huge and not finite values, and any bits.
+    fn component() -> impl proptest::strategy::Strategy<Value = f64> {
+        use proptest::prelude::*;
+        prop_oneof![
+            (-1.0f64..1.0, 0usize..12).prop_map(|(c, d)| format!("{c:.d$}").parse().unwrap()),
+            -1.0f64..1.0,
+            -1e6f64..1e6,
+            -1e-10f64..1e-10,
+            proptest::sample::select(vec![
+                0.0,
+                -0.0,
+                1.0,
+                -1.0,
+                0.5,
+                1e-12,
+                -1e-12,
+                1.000000000001e-12,
+                f64::MIN_POSITIVE,
+                5e-324,
+                f64::MAX,
+                -f64::MAX,
+                f64::INFINITY,
+                f64::NEG_INFINITY,
+                f64::NAN,
+            ]),
+            any::<u64>().prop_map(f64::from_bits),
+        ]
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 20_000, ..Default::default() })]
+
+        /// Bit for bit the first [`unit`], `None` included.
+        #[test]
+        fn unit_is_the_reference_bit_for_bit(x in component(), y in component(), z in component()) {
+            same_unit(Vector3::new(x, y, z))?;
+        }
+
+        /// Printed unit vectors (the tool axes of 5-axis CL files), their sign flips and
+        /// permutations.
+        #[test]
+        fn printed_axes_are_the_reference_bit_for_bit(
+            a in -std::f64::consts::PI..std::f64::consts::PI,
+            b in 0.0..std::f64::consts::PI,
+            d in 3usize..12,
+        ) {
+            let p = |c: f64| -> f64 { format!("{c:.d$}").parse().unwrap() };
+            let (x, y, z) = (p(b.sin() * a.cos()), p(b.sin() * a.sin()), p(b.cos()));
+            for v in [[x, y, z], [y, z, x], [z, x, y], [-x, y, -z], [x, -y, z]] {
+                same_unit(Vector3::from(v))?;
+            }
+        }
     }
 }
