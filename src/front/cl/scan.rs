@@ -140,6 +140,12 @@ mod tests {
             "1.5e3",
             "7.-",
             "9999999.9999999",
+            "25.",
+            ".005061",
+            ".",
+            "0",
+            "1234567",
+            "12345678",
         ];
         let tails = [
             "",
@@ -182,16 +188,21 @@ mod tests {
             proptest::prop_assert_eq!(got, want, "{:?}", String::from_utf8_lossy(&bytes));
         }
 
-        /// `[-]ddd.ddd` with any count of digits on either side, then anything.
+        /// `[-]ddd.ddd` with any count of digits on either side, or `[-]ddd`, then anything.
         #[test]
         fn numbers_read_as_the_general_reader_does(
             negative in proptest::bool::ANY,
             whole in "[0-9]{0,9}",
+            point in proptest::bool::weighted(0.8),
             frac in "[0-9]{0,17}",
             tail in "[-0-9.,\n ]{0,18}",
         ) {
             let sign = if negative { "-" } else { "" };
-            let text = format!("{sign}{whole}.{frac}{tail}");
+            let text = if point {
+                format!("{sign}{whole}.{frac}{tail}")
+            } else {
+                format!("{sign}{whole}{tail}")
+            };
             let b = text.as_bytes();
             let got = decimal(b, 0).map(|(v, e)| (v.to_bits(), e));
             let want = scan_decimal_wide(b, 0).map(|(v, e)| (v.to_bits(), e));
