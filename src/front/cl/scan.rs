@@ -15,43 +15,49 @@ fn blank<const CHUNK: bool>(c: u8) -> bool {
 /// The decimal at `b[at..]` and where it ends, as [`scan_decimal_wide`] reads it.
 ///
 /// CL values are `[-]d.ddd` with one to seven whole digits and at most fourteen digits in
-/// all; when sixteen bytes follow the sign such a value is read with three loads and no
-/// loop: the bytes after the point are shifted over it, so the digits form one run of at
-/// most fifteen, converted eight at a time. Anything else goes to the general reader.
+/// all; when sixteen bytes follow the sign such a value is read with two loads and no
+/// loop: one digit test of the sixteen bytes finds the point (the first byte that is no
+/// digit) and the end (the second), the bytes after the point are shifted over it, and
+/// the one run of at most fourteen digits is converted eight at a time. Anything else
+/// goes to the general reader.
 #[inline(always)]
 fn decimal(b: &[u8], at: usize) -> Option<(f64, usize)> {
     let negative = b.get(at) == Some(&b'-');
     let start = at + usize::from(negative);
-    if let Some(w) = b.get(start..).and_then(<[u8]>::first_chunk::<16>) {
-        let x = u128::from_le_bytes(*w);
-        let lo = x as u64 ^ ZEROS;
-        let hi = (x >> 64) as u64 ^ ZEROS;
+    if let Some(w) = b.get(start..start + 16).and_then(|w| <&[u8; 16]>::try_from(w).ok()) {
+        let (l, h) = w.split_at(8);
+        let lo = u64::from_le_bytes(l.try_into().unwrap_or_default()) ^ ZEROS;
+        let hi = u64::from_le_bytes(h.try_into().unwrap_or_default()) ^ ZEROS;
+        // A byte that carries in the test spoils only the bytes after it; the point
+        // does not carry, and the end is the first byte that is no digit after it.
+        let (stop_lo, stop_hi) = (not_digit(lo), not_digit(hi));
         // Whole digits (8 when all eight bytes are digits).
-        let whole = (not_digit(lo).trailing_zeros() / 8) as usize;
-        if (1..8).contains(&whole) && w[whole] == b'.' {
-            // The digits before the point stay, the bytes after it move down one; the top
-            // byte, now empty, is marked as no digit so the run ends within the sixteen.
-            let keep = (1u64 << (8 * whole)) - 1;
-            let digits_lo = (lo & keep) | (((lo >> 8) | (hi << 56)) & !keep);
-            let digits_hi = (hi >> 8) | 0xff00_0000_0000_0000;
-            let end_lo = not_digit(digits_lo);
-            let (mantissa, count) = if end_lo != 0 {
-                let n = (end_lo.trailing_zeros() / 8) as usize;
-                (eight_digits(digits_lo << (64 - 8 * n)), n)
+        let whole = (stop_lo.trailing_zeros() / 8) as usize;
+        let point = (lo >> (8 * (whole & 7))) as u8 == b'.' ^ b'0';
+        if (1..8).contains(&whole) && point {
+            let after = stop_lo & stop_lo.wrapping_sub(1);
+            let end = if after != 0 {
+                (after.trailing_zeros() / 8) as usize
             } else {
-                let m = (not_digit(digits_hi).trailing_zeros() / 8) as usize;
-                let high = eight_digits(digits_lo);
-                if m == 0 {
-                    (high, 8)
-                } else {
-                    let low = eight_digits(digits_hi << (64 - 8 * m));
-                    (high * POW10_INT[m] + low, 8 + m)
-                }
+                8 + (stop_hi.trailing_zeros() / 8) as usize
             };
-            // Fifteen digits may go on past the sixteen bytes: the general reader counts them.
+            // Digits in all, without the point: at most 15 when the end is past the
+            // sixteen bytes, and fifteen may go on: the general reader counts them.
+            let count = end - 1;
             if count < 15 {
+                // The digits before the point stay, the bytes after it move down one.
+                let keep = (1u64 << (8 * whole)) - 1;
+                let digits_lo = (lo & keep) | (((lo >> 8) | (hi << 56)) & !keep);
+                let mantissa = if count <= 8 {
+                    eight_digits(digits_lo << (64 - 8 * count))
+                } else {
+                    let low = count - 8;
+                    let digits_hi = hi >> 8;
+                    eight_digits(digits_lo) * POW10_INT[low]
+                        + eight_digits(digits_hi << (64 - 8 * low))
+                };
                 let value = exact_decimal(mantissa, count - whole, negative);
-                return Some((value, start + count + 1));
+                return Some((value, start + end));
             }
         }
     }
@@ -134,6 +140,12 @@ mod tests {
             "1.5e3",
             "7.-",
             "9999999.9999999",
+            "25.",
+            ".005061",
+            ".",
+            "0",
+            "1234567",
+            "12345678",
         ];
         let tails = [
             "",
@@ -156,6 +168,45 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig { cases: 4096, ..Default::default() })]
+
+        /// Bytes of numbers, separators and a few others, read from any place.
+        #[test]
+        fn soup_reads_as_the_general_reader_does(
+            bytes in proptest::collection::vec(
+                proptest::sample::select(b"0123456789012345678901234..-+,, \n\re".to_vec()),
+                0..48,
+            ),
+            at in 0usize..6,
+        ) {
+            let got = decimal(&bytes, at).map(|(v, e)| (v.to_bits(), e));
+            let want = scan_decimal_wide(&bytes, at).map(|(v, e)| (v.to_bits(), e));
+            proptest::prop_assert_eq!(got, want, "{:?}", String::from_utf8_lossy(&bytes));
+        }
+
+        /// `[-]ddd.ddd` with any count of digits on either side, or `[-]ddd`, then anything.
+        #[test]
+        fn numbers_read_as_the_general_reader_does(
+            negative in proptest::bool::ANY,
+            whole in "[0-9]{0,9}",
+            point in proptest::bool::weighted(0.8),
+            frac in "[0-9]{0,17}",
+            tail in "[-0-9.,\n ]{0,18}",
+        ) {
+            let sign = if negative { "-" } else { "" };
+            let text = if point {
+                format!("{sign}{whole}.{frac}{tail}")
+            } else {
+                format!("{sign}{whole}{tail}")
+            };
+            let b = text.as_bytes();
+            let got = decimal(b, 0).map(|(v, e)| (v.to_bits(), e));
+            let want = scan_decimal_wide(b, 0).map(|(v, e)| (v.to_bits(), e));
+            proptest::prop_assert_eq!(got, want, "{:?}", text);
         }
     }
 

@@ -2142,6 +2142,18 @@ const POW10: [f64; 16] = [
     1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15,
 ];
 
+/// [`POW10`], then its negatives: the divisors of [`exact_decimal`], which carry the sign.
+const SIGNED_POW10: [f64; 32] = {
+    let mut t = [0.0; 32];
+    let mut i = 0;
+    while i < 16 {
+        t[i] = POW10[i];
+        t[i + 16] = -POW10[i];
+        i += 1;
+    }
+    t
+};
+
 /// Parses a G-code decimal (`-1.25`, `.5`, `3.`): exactly as `str::parse::<f64>`, with a
 /// fast path for up to 15 digits, where the digits form an exact integer and dividing by
 /// an exact power of ten rounds once, correctly (Clinger's fast path).
@@ -2327,9 +2339,18 @@ pub(crate) const POW10_INT: [u64; 9] = [
 
 /// `±mantissa / 10^frac` for a mantissa of at most 15 digits: both are exact in f64, so
 /// the one division rounds correctly (Clinger's fast path), as `str::parse` does.
+///
+/// The mantissa is below 2^52, so it converts by setting it into the mantissa field of
+/// 2^52 and taking 2^52 off (exact), with instructions that write all of a register:
+/// `cvtsi2sd` keeps the register's upper half, which can make each number's division
+/// wait for the one before. The sign is the divisor's, from a table (no branch):
+/// `a / -b` is `-(a / b)` in every rounding to nearest, and `0 / -b` is `-0`.
+#[inline(always)]
 pub(crate) fn exact_decimal(mantissa: u64, frac: usize, negative: bool) -> f64 {
-    let value = mantissa as f64 / POW10[frac];
-    if negative { -value } else { value }
+    const TWO_52: f64 = 4_503_599_627_370_496.0;
+    debug_assert!(mantissa < 1 << 52 && frac < 16);
+    let m = f64::from_bits(mantissa | TWO_52.to_bits()) - TWO_52;
+    m / SIGNED_POW10[usize::from(negative) * 16 + (frac & 15)]
 }
 
 /// An empty token vector of another lifetime, keeping `v`'s allocation (collecting an
