@@ -255,8 +255,9 @@ fn plain_pose(
         _ => return None,
     };
     let tip = Point3::new(v[0], v[1], v[2]) * scale;
-    // `c - c` is 0 for a finite `c`, NaN for the others.
-    ((tip.x - tip.x) + (tip.y - tip.y) + (tip.z - tip.z) == 0.0).then_some((tip, axis))
+    // `c * 0.0` is ±0 for a finite `c` and NaN for the others: one test for all three,
+    // without a branch per coordinate.
+    (tip.x * 0.0 + tip.y * 0.0 + tip.z * 0.0 == 0.0).then_some((tip, axis))
 }
 
 /// A number as a G-code word value: at most 4 decimals, no trailing zeros.

@@ -24,7 +24,10 @@ fn blank<const CHUNK: bool>(c: u8) -> bool {
 fn decimal(b: &[u8], at: usize) -> Option<(f64, usize)> {
     let negative = b.get(at) == Some(&b'-');
     let start = at + usize::from(negative);
-    if let Some(w) = b.get(start..start + 16).and_then(|w| <&[u8; 16]>::try_from(w).ok()) {
+    if let Some(w) = b
+        .get(start..start + 16)
+        .and_then(|w| <&[u8; 16]>::try_from(w).ok())
+    {
         let (l, h) = w.split_at(8);
         let lo = u64::from_le_bytes(l.try_into().unwrap_or_default()) ^ ZEROS;
         let hi = u64::from_le_bytes(h.try_into().unwrap_or_default()) ^ ZEROS;
