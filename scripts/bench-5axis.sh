@@ -10,7 +10,10 @@
 #    around it, peak RSS KiB):
 #      ncpost run --preset emoc-x5 (parse, ik, unwrap-rotary, densify, feed, limits,
 #      verify, RepRapFirmware output), and scripts/seed_post.py (the seed formulas, IK
-#      only, pure Python) on the same file.
+#      only, pure Python) on the same file. Both write their G-code to a file in
+#      target/bench-data (ncpost with -o, which replaces the file atomically after an
+#      fdatasync; the Python post through its standard output), each over its output of
+#      the run before, as a user re-running a post does.
 # 4. Prints a markdown table and the speed ratio; exits non-zero if a run fails.
 #
 # BENCH_REPEAT=N runs each tool N times and keeps the best wall time (default 1).
@@ -28,12 +31,12 @@ if [[ ! -s "$CL" ]]; then
 fi
 cargo build --release --quiet
 
-measure() { # name, command...
-  local name=$1; shift
+measure() { # name, output file, command...
+  local name=$1 out=$2; shift 2
   local best="" rss=0
   for _ in $(seq "$REPEAT"); do
     local t0=$EPOCHREALTIME
-    /usr/bin/time -f '%M' -o "$DATA/time.txt" "$@" > /dev/null
+    /usr/bin/time -f '%M' -o "$DATA/time.txt" "$@" > "$out"
     local t1=$EPOCHREALTIME
     local wall
     wall=$(awk -v a="$t0" -v b="$t1" 'BEGIN { printf "%.3f", b - a }')
@@ -53,8 +56,8 @@ echo "input: $CL ($N GOTO points, $SIZE bytes)"
 echo
 echo "| program | wall s | peak RSS MB |"
 echo "|---|---|---|"
-measure ncpost "${CARGO_TARGET_DIR:-target}/release/ncpost" run --quiet --preset emoc-x5 "$CL" -o "$DATA/five_axis_${N}.gcode"
-measure seed_post python3 scripts/seed_post.py "$CL"
+measure ncpost /dev/null "${CARGO_TARGET_DIR:-target}/release/ncpost" run --quiet --preset emoc-x5 "$CL" -o "$DATA/five_axis_${N}.gcode"
+measure seed_post "$DATA/seed_post_${N}.gcode" python3 scripts/seed_post.py "$CL"
 echo
 awk -v a="$(cat "$DATA/seed_post.wall")" -v b="$(cat "$DATA/ncpost.wall")" \
   'BEGIN { printf "ncpost is %.1fx faster than the seed post in Python\n", a / b }'

@@ -22,12 +22,28 @@ use crate::ir::{
 };
 use number::{put_number, to_units};
 
+/// Writing stopped because the output cannot be written (a full disk, a closed pipe); the
+/// diagnostic that says so is in the list of the call that stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct OutputLost;
+
 /// A sink for IR blocks.
 pub trait Backend {
     /// Writes one block. An `Err` is a diagnostic about the block (an IR the backend
     /// cannot express) or an I/O failure.
     fn write_block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>)
     -> Result<(), Diagnostic>;
+    /// Writes `blocks` in order, adding every diagnostic to `diags`; stops at an I/O
+    /// failure, when nothing more can be written. By default one [`Backend::write_block`]
+    /// after the other; a backend may hand the batch's text to its writer in one piece
+    /// (where [`Backend::write_block`] hands each block's text over as it returns).
+    fn write_batch(
+        &mut self,
+        blocks: &[Block],
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), OutputLost> {
+        each_block(blocks, diags, |b, d| self.write_block(b, d))
+    }
     /// Flushes the output at the end of the program.
     fn finish(&mut self) -> Result<(), Diagnostic>;
 }
@@ -176,8 +192,9 @@ struct Modes {
 
 /// The line being printed, after the finished lines not yet handed to the writer: bytes
 /// that are always ASCII or whole UTF-8 characters (only `char`s, `str`s and numbers go
-/// in). Finished lines go out in chunks of [`Line::CHUNK`]: one `write_all` and one
-/// copy per line cost more than the printing of a short line.
+/// in). Finished lines go to the writer after each block written alone, after each
+/// batch, and whenever they fill [`Line::CHUNK`]: one `write_all` and one copy per line
+/// cost more than the printing of a short line.
 struct Line {
     /// Initialized beyond `end`, so that a number is built in place (see
     /// [`put_number`]) without growing the vector for every word.
@@ -1136,8 +1153,13 @@ impl<W: Write> Emitter<W> {
         }
     }
 
+    /// Hands the finished lines to the writer.
+    pub(crate) fn hand_out(&mut self) -> Result<(), Diagnostic> {
+        self.line.write_finished(&mut self.out).map_err(io_error)
+    }
+
     pub(crate) fn flush(&mut self) -> Result<(), Diagnostic> {
-        self.line.write_finished(&mut self.out).map_err(io_error)?;
+        self.hand_out()?;
         self.out.flush().map_err(io_error)
     }
 }
@@ -1226,7 +1248,26 @@ impl<W: Write> Backend for Emitter<W> {
         block: &Block,
         diags: &mut Vec<Diagnostic>,
     ) -> Result<(), Diagnostic> {
-        self.block(block, diags)
+        let written = self.block(block, diags);
+        // The block's text is the writer's when this returns (a program streamed to a
+        // controller line by line sees it now).
+        let handed = self.hand_out();
+        written.and(handed)
+    }
+    fn write_batch(
+        &mut self,
+        blocks: &[Block],
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), OutputLost> {
+        let written = each_block(blocks, diags, |b, d| self.block(b, d));
+        // The whole batch's text in one write; what was printed before a failure stands.
+        match self.hand_out() {
+            Err(e) if written.is_ok() => {
+                diags.push(e);
+                Err(OutputLost)
+            }
+            _ => written,
+        }
     }
     fn finish(&mut self) -> Result<(), Diagnostic> {
         self.flush()
@@ -1242,7 +1283,14 @@ macro_rules! writer_backend {
                 block: &$crate::ir::Block,
                 diags: &mut Vec<$crate::diag::Diagnostic>,
             ) -> Result<(), $crate::diag::Diagnostic> {
-                self.0.block(block, diags)
+                $crate::back::Backend::write_block(&mut self.0, block, diags)
+            }
+            fn write_batch(
+                &mut self,
+                blocks: &[$crate::ir::Block],
+                diags: &mut Vec<$crate::diag::Diagnostic>,
+            ) -> Result<(), $crate::back::OutputLost> {
+                self.0.write_batch(blocks, diags)
             }
             fn finish(&mut self) -> Result<(), $crate::diag::Diagnostic> {
                 self.0.flush()
@@ -1276,15 +1324,25 @@ pub(crate) fn write_each(
     backend: &mut dyn Backend,
     blocks: &[Block],
     diags: &mut Vec<Diagnostic>,
-) -> Result<(), ()> {
+) -> Result<(), OutputLost> {
+    backend.write_batch(blocks, diags)
+}
+
+/// Writes each block with `write`, adding its diagnostics to `diags`; `Err` after an
+/// I/O failure.
+pub(crate) fn each_block(
+    blocks: &[Block],
+    diags: &mut Vec<Diagnostic>,
+    mut write: impl FnMut(&Block, &mut Vec<Diagnostic>) -> Result<(), Diagnostic>,
+) -> Result<(), OutputLost> {
     for b in blocks {
-        if let Err(d) = backend.write_block(b, diags) {
+        if let Err(d) = write(b, diags) {
             // The output cannot be written (a full disk, a closed pipe): nothing after
             // this block can be either, so writing stops with one error.
             let io = is_io_error(&d);
             diags.push(d);
             if io {
-                return Err(());
+                return Err(OutputLost);
             }
         }
     }
