@@ -458,7 +458,7 @@ impl Pipeline {
         let mut written = 0u64;
         let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
             written += blocks.len() as u64;
-            let _ = back::write_each(back, blocks, diags);
+            let _ = back.write_batch(blocks, diags);
             blocks.clear();
         };
         let mut cur = Vec::new();
@@ -585,7 +585,10 @@ impl Relay<'_> {
         // Set by the first write error (a full disk, a closed pipe): nothing more is written.
         if !self.failed.load(Ordering::Acquire) {
             w.written += batch.blocks.len() as u64;
-            if back::write_each(w.backend.as_mut(), &batch.blocks, &mut batch.diags).is_err() {
+            if w.backend
+                .write_batch(&batch.blocks, &mut batch.diags)
+                .is_err()
+            {
                 self.failed.store(true, Ordering::Release);
                 self.schedule.stop_reading();
             } else if batch.end

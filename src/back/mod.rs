@@ -1312,20 +1312,11 @@ use writer_backend;
 /// ```
 pub fn write_blocks(backend: &mut dyn Backend, blocks: &[Block]) -> Vec<Diagnostic> {
     let mut diags = Vec::new();
-    let _ = write_each(backend, blocks, &mut diags);
+    let _ = backend.write_batch(blocks, &mut diags);
     if let Err(d) = backend.finish() {
         diags.push(d);
     }
     diags
-}
-
-/// Writes each block (without finishing), adding the backend's diagnostics to `diags`.
-pub(crate) fn write_each(
-    backend: &mut dyn Backend,
-    blocks: &[Block],
-    diags: &mut Vec<Diagnostic>,
-) -> Result<(), OutputLost> {
-    backend.write_batch(blocks, diags)
 }
 
 /// Writes each block with `write`, adding its diagnostics to `diags`; `Err` after an

@@ -1,6 +1,6 @@
 //! Fixed-precision number printing without float formatting on the hot path.
 
-use crate::front::gcode::ZEROS;
+use crate::front::gcode::{POW10_INT, ZEROS};
 
 /// Rounds `value` to `decimals` places as an integer count of units (`10^-decimals`).
 ///
@@ -62,27 +62,13 @@ const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 /// digits, the point, 9 decimals, and the slack of the last 8-byte store.
 pub(crate) const ROOM: usize = 40;
 
-/// `10^t` for the digit count of a `u32`.
-const POW10_U32: [u32; 10] = [
-    1,
-    10,
-    100,
-    1_000,
-    10_000,
-    100_000,
-    1_000_000,
-    10_000_000,
-    100_000_000,
-    1_000_000_000,
-];
-
 /// The number of decimal digits of `x` (1 for 0), without a loop or a branch.
 #[inline(always)]
 fn decimal_len(x: u32) -> usize {
     // `x | 1` has as many digits as `x` (no power of ten is odd) and is never 0.
     let x = x | 1;
     let t = ((32 - x.leading_zeros()) * 1233) >> 12;
-    t as usize + 1 - usize::from(x < POW10_U32[t as usize])
+    t as usize + 1 - usize::from(u64::from(x) < POW10_INT[t as usize])
 }
 
 /// The eight decimal digits of `x` (below 10^8) as byte values 0..=9, the most

@@ -56,6 +56,19 @@ pub enum RotaryLetter {
 }
 
 impl RotaryLetter {
+    /// `Rᵀ v` for the turn about this letter's axis whose sine and cosine are `s` and `c`
+    /// (as [`Machine::rotation_by`] builds it): nalgebra's `tr_mul` without its products
+    /// with the matrix's zeros and ones, which only add signed zeros. For the passes that
+    /// undo a table rotary once per block, from the sines in registers.
+    #[inline(always)]
+    pub(crate) fn turn_back(self, s: f64, c: f64, v: [f64; 3]) -> [f64; 3] {
+        match self {
+            RotaryLetter::A => [v[0], c * v[1] + s * v[2], c * v[2] - s * v[1]],
+            RotaryLetter::B => [c * v[0] - s * v[2], v[1], s * v[0] + c * v[2]],
+            RotaryLetter::C => [c * v[0] + s * v[1], c * v[1] - s * v[0], v[2]],
+        }
+    }
+
     /// The coordinate index (0 = X, 1 = Y, 2 = Z) of the direction it turns about.
     pub fn index(self) -> usize {
         match self {

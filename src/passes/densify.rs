@@ -278,11 +278,7 @@ impl TableTable {
     fn reach(&self, xyz: [f64; 3], s: f64, c: f64) -> [f64; 2] {
         let [p0, p1] = self.pivots;
         let d = [xyz[0] - p0[0], xyz[1] - p0[1], xyz[2] - p0[2]];
-        let t = match self.about[0] {
-            RotaryLetter::A => [d[0], c * d[1] + s * d[2], c * d[2] - s * d[1]],
-            RotaryLetter::B => [c * d[0] - s * d[2], d[1], s * d[0] + c * d[2]],
-            RotaryLetter::C => [c * d[0] + s * d[1], c * d[1] - s * d[0], d[2]],
-        };
+        let t = self.about[0].turn_back(s, c, d);
         let d1 = [
             p0[0] + t[0] - p1[0],
             p0[1] + t[1] - p1[1],

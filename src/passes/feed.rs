@@ -111,30 +111,19 @@ impl TableTable {
         })
     }
 
-    /// `Rᵀ v` for the turn about `about` whose sine and cosine are `s` and `c` (as
-    /// [`Machine::rotation_by`] builds it), nalgebra's `tr_mul` without its zero terms.
-    #[inline(always)]
-    fn turn_back(about: RotaryLetter, s: f64, c: f64, v: [f64; 3]) -> [f64; 3] {
-        match about {
-            RotaryLetter::A => [v[0], c * v[1] + s * v[2], c * v[2] - s * v[1]],
-            RotaryLetter::B => [c * v[0] - s * v[2], v[1], s * v[0] + c * v[2]],
-            RotaryLetter::C => [c * v[0] + s * v[1], c * v[1] - s * v[0], v[2]],
-        }
-    }
-
     /// The tool tip at `xyz` with the rotaries' sines and cosines `sc` (listing order):
     /// undo the base rotary, then the one it carries.
     #[inline(always)]
     fn tip(&self, xyz: [f64; 3], sc: [(f64, f64); 2]) -> Point3<f64> {
         let [p0, p1] = self.pivots;
         let d = [xyz[0] - p0[0], xyz[1] - p0[1], xyz[2] - p0[2]];
-        let t = Self::turn_back(self.about[0], sc[0].0, sc[0].1, d);
+        let t = self.about[0].turn_back(sc[0].0, sc[0].1, d);
         let q = [
             t[0] + p0[0] - p1[0],
             t[1] + p0[1] - p1[1],
             t[2] + p0[2] - p1[2],
         ];
-        let u = Self::turn_back(self.about[1], sc[1].0, sc[1].1, q);
+        let u = self.about[1].turn_back(sc[1].0, sc[1].1, q);
         Point3::new(u[0] + p1[0], u[1] + p1[1], u[2] + p1[2])
     }
 }

@@ -2324,8 +2324,9 @@ pub(crate) fn eight_digits(v: u64) -> u64 {
     v.wrapping_mul(10_000 * (1 << 32) + 1) >> 32
 }
 
-/// `10^n` for the digits [`read_digits_wide`] reads at once.
-pub(crate) const POW10_INT: [u64; 9] = [
+/// `10^n` for the digits [`read_digits_wide`] reads at once (and for the printer's digit
+/// counts, up to 10^9).
+pub(crate) const POW10_INT: [u64; 10] = [
     1,
     10,
     100,
@@ -2335,6 +2336,7 @@ pub(crate) const POW10_INT: [u64; 9] = [
     1_000_000,
     10_000_000,
     100_000_000,
+    1_000_000_000,
 ];
 
 /// `±mantissa / 10^frac` for a mantissa of at most 15 digits: both are exact in f64, so
