@@ -22,6 +22,7 @@ pub mod heightmap;
 pub mod ir;
 pub mod machine;
 pub mod motion;
+pub mod num;
 pub mod passes;
 pub mod pipeline;
 pub mod plot;

@@ -153,7 +153,7 @@ pub fn write_string(blocks: &[Block], options: &Options) -> Result<String, Vec<D
 fn supported_code(word: &str, settings: &Settings) -> bool {
     let mut chars = word.chars();
     let letter = chars.next().map(|c| c.to_ascii_uppercase());
-    let Some(n) = crate::front::gcode::parse_decimal(chars.as_str()) else {
+    let Some(n) = crate::num::parse_decimal(chars.as_str()) else {
         return false;
     };
     // Codes as tenths: G38.2 is 382.
@@ -229,7 +229,7 @@ pub(crate) fn is_subprogram_word(word: &str) -> bool {
         return false;
     }
     matches!(
-        crate::front::gcode::parse_decimal(chars.as_str()),
+        crate::num::parse_decimal(chars.as_str()),
         Some(n) if n == 98.0 || n == 99.0
     )
 }
@@ -242,7 +242,7 @@ pub(crate) fn is_unsupported_motion(word: &str) -> bool {
     if !matches!(chars.next(), Some('G' | 'g')) {
         return false;
     }
-    match crate::front::gcode::parse_decimal(chars.as_str()) {
+    match crate::num::parse_decimal(chars.as_str()) {
         Some(n) => {
             let i = n.trunc();
             i == 5.0 || i == 33.0 || i == 73.0 || i == 76.0 || (81.0..=89.0).contains(&i)

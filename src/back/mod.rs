@@ -8,7 +8,6 @@
 pub mod gcode;
 pub mod grbl;
 pub mod ir;
-pub mod number;
 pub mod rrf;
 
 use std::io::Write;
@@ -20,6 +19,7 @@ use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Comment, CommentStyle, FeedMode, Joints, Motion,
     MotionKind, OffsetChange, Plane, Target,
 };
+use crate::num::print as number;
 use number::{put_number, to_units};
 
 /// Writing stopped because the output cannot be written (a full disk, a closed pipe); the
@@ -955,7 +955,7 @@ impl<W: Write> Emitter<W> {
         for w in text.split_whitespace() {
             if let Some(n) = w
                 .strip_prefix(['M', 'm'])
-                .and_then(crate::front::gcode::parse_decimal)
+                .and_then(crate::num::parse_decimal)
             {
                 if n == 82.0 {
                     self.modes.e_relative = Some(false);
@@ -1008,7 +1008,7 @@ impl<W: Write> Emitter<W> {
                 self.modes.plane = Some(plane);
             }
             if self.modes.e_relative != Some(m.relative_e)
-                && crate::front::gcode::lexer::has_word(&v.text, 'E')
+                && crate::num::lexer::has_word(&v.text, 'E')
             {
                 self.text(if m.relative_e { "M83" } else { "M82" });
                 self.modes.e_relative = Some(m.relative_e);

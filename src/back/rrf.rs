@@ -119,7 +119,7 @@ pub fn write_string(blocks: &[Block], options: &Options) -> Result<String, Vec<D
 fn unsupported(word: &str) -> bool {
     let mut chars = word.chars();
     let letter = chars.next().map(|c| c.to_ascii_uppercase());
-    let Some(n) = crate::front::gcode::parse_decimal(chars.as_str()) else {
+    let Some(n) = crate::num::parse_decimal(chars.as_str()) else {
         return false;
     };
     if n.fract() != 0.0 {

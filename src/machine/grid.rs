@@ -12,7 +12,7 @@
 use std::f64::consts::PI;
 
 use super::Machine;
-use crate::back::number::{from_units, to_units};
+use crate::num::print::{from_units, to_units};
 
 /// `π - PI`: the part of π that `f64` leaves out.
 const PI_LO: f64 = 1.224_646_799_147_353_2e-16;

@@ -78,9 +78,9 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::front::gcode::lexer::{Tok, tokens};
 use crate::front::gcode::{LowerState, Lowerer, MotionMode, Options as InputOptions, oword_call};
 use crate::ir::{AXIS_COUNT, Axis, Block, BlockKind, MotionKind, OffsetCode, Span, Target};
+use crate::num::lexer::{Tok, tokens};
 
 /// Options of `expand-subprograms`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -626,7 +626,7 @@ impl Tracker {
         let mut state = self.state;
         state.inch = m.inch;
         state.relative = m.relative;
-        if crate::front::gcode::lexer::has_word(&v.text, 'E') {
+        if crate::num::lexer::has_word(&v.text, 'E') {
             state.relative_e = m.relative_e;
         }
         if let Some(p) = m.plane {
@@ -780,7 +780,7 @@ fn motion_of(text: &str) -> Option<MotionMode> {
     for (_, t, _) in tokens(text) {
         if let Tok::Word(w) = t
             && w.starts_with(['G', 'g'])
-            && let Some(n) = crate::front::gcode::parse_decimal(w[1..].trim_start())
+            && let Some(n) = crate::num::parse_decimal(w[1..].trim_start())
         {
             mode = match n {
                 0.0 => Some(MotionMode::Rapid),
@@ -802,7 +802,7 @@ fn motion_of(text: &str) -> Option<MotionMode> {
 fn has_code(text: &str, letter: char, value: f64) -> bool {
     word_positions(text, letter)
         .iter()
-        .any(|(_, _, n)| n.as_deref().and_then(crate::front::gcode::parse_decimal) == Some(value))
+        .any(|(_, _, n)| n.as_deref().and_then(crate::num::parse_decimal) == Some(value))
 }
 
 /// The words with `letter` in a line: byte range and number text (`None` for a bare
@@ -1020,7 +1020,7 @@ fn collect_definitions(
 fn strip_m99(text: &str) -> String {
     let mut s = text.to_string();
     for (a, b, n) in word_positions(text, 'M').into_iter().rev() {
-        if n.as_deref().and_then(crate::front::gcode::parse_decimal) == Some(99.0) {
+        if n.as_deref().and_then(crate::num::parse_decimal) == Some(99.0) {
             s.replace_range(a..b, &" ".repeat(b - a));
         }
     }
@@ -1098,9 +1098,9 @@ fn classify(block: &Block, text: &str, options: &Options) -> Option<Call> {
             at: c.at,
         });
     }
-    let m98 = word_positions(text, 'M').into_iter().find(|(_, _, n)| {
-        n.as_deref().and_then(crate::front::gcode::parse_decimal) == Some(98.0)
-    })?;
+    let m98 = word_positions(text, 'M')
+        .into_iter()
+        .find(|(_, _, n)| n.as_deref().and_then(crate::num::parse_decimal) == Some(98.0))?;
     let m98_at = (m98.0, m98.1);
     let expression = tokens(text).any(|t| matches!(t.1, Tok::Other(c) if "#[]".contains(c)));
     if expression || inside_flow {
@@ -1150,7 +1150,7 @@ fn classify(block: &Block, text: &str, options: &Options) -> Option<Call> {
     let l = word_positions(text, 'L').into_iter().next();
     let (program, count, count_at) = match l {
         Some((ls, le, Some(lv))) => {
-            let v = crate::front::gcode::parse_decimal(&lv).unwrap_or(f64::NAN);
+            let v = crate::num::parse_decimal(&lv).unwrap_or(f64::NAN);
             let max = options.max_count;
             if !(v.fract() == 0.0 && v >= 1.0 && v <= max as f64) {
                 let why = if v.fract() != 0.0 || !v.is_finite() {

@@ -120,7 +120,6 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::{printed, write_fixed};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints,
@@ -128,6 +127,7 @@ use crate::ir::{
 };
 use crate::machine::FeedRule;
 use crate::motion::{self, Model, Planner, Segment, Timed, Timing};
+use crate::num::print::{printed, write_fixed};
 
 /// What the pass produces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -32,13 +32,13 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::{from_units, to_units};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target,
 };
 use crate::machine::grid::RotaryGrid;
 use crate::machine::{FeedRule, Machine, Mount, RotaryLetter};
+use crate::num::print::{from_units, to_units};
 
 /// Options of `feed`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -665,7 +665,7 @@ impl Feed {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::back::number::printed;
+    use crate::num::print::printed;
     use crate::preset::Preset;
     use proptest::prelude::*;
 

@@ -110,10 +110,7 @@ fn g_codes(text: &str) -> Vec<f64> {
                 while end < bytes.len() && (bytes[end].is_ascii_digit() || bytes[end] == b'.') {
                     end += 1;
                 }
-                if let Some(v) = text
-                    .get(start..end)
-                    .and_then(crate::front::gcode::parse_decimal)
-                {
+                if let Some(v) = text.get(start..end).and_then(crate::num::parse_decimal) {
                     codes.push(v);
                 }
                 i = end;
@@ -130,7 +127,7 @@ fn g_codes(text: &str) -> Vec<f64> {
 fn has_axis_word(text: &str) -> bool {
     Axis::ALL
         .iter()
-        .any(|a| crate::front::gcode::lexer::has_word(text, a.letter()))
+        .any(|a| crate::num::lexer::has_word(text, a.letter()))
 }
 
 impl Normalize {
@@ -146,7 +143,7 @@ impl Normalize {
 
     fn offset_in_use(&self, text: &str) -> bool {
         Axis::ALL.iter().any(|a| {
-            self.offsets[a.index()] != 0.0 && crate::front::gcode::lexer::has_word(text, a.letter())
+            self.offsets[a.index()] != 0.0 && crate::num::lexer::has_word(text, a.letter())
         })
     }
 
@@ -165,7 +162,7 @@ impl Normalize {
                 words.push(w.to_string());
                 continue;
             };
-            let value = crate::front::gcode::parse_decimal(num);
+            let value = crate::num::parse_decimal(num);
             match (Axis::from_letter(letter), value) {
                 (Some(axis), Some(v)) => {
                     let scale = if axis.is_rotary() { 1.0 } else { unit };

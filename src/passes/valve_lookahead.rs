@@ -119,7 +119,6 @@ use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
-use crate::back::number::printed;
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints,
@@ -127,6 +126,7 @@ use crate::ir::{
 };
 use crate::motion::arc::ArcPath;
 use crate::motion::{self, Model, Profile, Segment, Timing};
+use crate::num::print::printed;
 
 /// How E-only moves are timed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -162,7 +162,7 @@ impl<'a> Args<'a> {
                 a.end,
             ));
         }
-        match crate::front::gcode::parse_decimal(text) {
+        match crate::num::parse_decimal(text) {
             Some(v) if v.is_finite() => Ok(v),
             _ => Err(self.stmt.locate(
                 Diagnostic::error("cl::bad-number", format!("`{text}` is out of range"))

@@ -1,8 +1,8 @@
 //! The one-pass reader of plain `GOTO/x,y,z[,i,j,k]` lines, most of the lines of a
-//! 5-axis CL file. It reads what [`crate::front::gcode::scan_decimal_wide`] reads, with
+//! 5-axis CL file. It reads what [`crate::num::scan_decimal_wide`] reads, with
 //! the same values (the proptests of the CL frontend hold it to the grammar).
 
-use crate::front::gcode::{
+use crate::num::decimal::{
     POW10_INT, ZEROS, eight_digits, exact_decimal, not_digit, scan_decimal_wide,
 };
 

@@ -6,10 +6,8 @@
 //! positions they may change become unknown.
 
 pub mod ast;
+pub use crate::num::lexer;
 pub(crate) use lower::{LowerState, Lowerer, MotionMode, oword_call};
-pub(crate) use lower::{POW10_INT, ZEROS, eight_digits, exact_decimal, not_digit};
-pub use lower::{parse_decimal, scan_decimal, scan_decimal_wide};
-pub mod lexer;
 mod lower;
 
 use std::io::BufRead;

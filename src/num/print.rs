@@ -1,13 +1,13 @@
 //! Fixed-precision number printing without float formatting on the hot path.
 
-use crate::front::gcode::{POW10_INT, ZEROS};
+use crate::num::decimal::{POW10_INT, ZEROS};
 
 /// Rounds `value` to `decimals` places as an integer count of units (`10^-decimals`).
 ///
 /// Returns `None` when the value does not fit (non-finite, or beyond ±9e15 units).
 ///
 /// ```
-/// use ncpost::back::number::to_units;
+/// use ncpost::num::print::to_units;
 /// assert_eq!(to_units(1.2345, 3), Some(1235));
 /// assert_eq!(to_units(-0.0004, 3), Some(0));
 /// ```
@@ -34,7 +34,7 @@ pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
 /// [`to_units`] and back; `None` when it does not fit.
 ///
 /// ```
-/// use ncpost::back::number::printed;
+/// use ncpost::num::print::printed;
 /// assert_eq!(printed(1.23456, 3), Some(1.235));
 /// assert_eq!(printed(f64::INFINITY, 3), None);
 /// ```
@@ -47,7 +47,7 @@ pub fn printed(value: f64, decimals: u8) -> Option<f64> {
 /// the value [`to_units`] rounded to them, for a caller that needs both.
 ///
 /// ```
-/// use ncpost::back::number::from_units;
+/// use ncpost::num::print::from_units;
 /// assert_eq!(from_units(-1235, 3), -1.235);
 /// ```
 #[inline]
@@ -222,7 +222,7 @@ fn put_fixed<const FRAC: usize>(
 /// (`12.500` → `12.5`, `3.000` → `3`).
 ///
 /// ```
-/// use ncpost::back::number::write_units;
+/// use ncpost::num::print::write_units;
 /// let mut s = String::new();
 /// write_units(&mut s, -1250, 3, true);
 /// assert_eq!(s, "-1.25");

@@ -53,7 +53,7 @@ pub type Spanned<'a> = (usize, Tok<'a>, usize);
 /// Splits `line` (without its line terminator) into `out`, which is cleared first.
 ///
 /// ```
-/// use ncpost::front::gcode::lexer::{lex_line, Tok};
+/// use ncpost::num::lexer::{lex_line, Tok};
 /// let mut toks = Vec::new();
 /// lex_line("G1 X10 (move) ; done", &mut toks);
 /// assert_eq!(toks[1].1, Tok::Word("X10"));
@@ -74,7 +74,7 @@ pub fn lex_line<'a>(line: &'a str, out: &mut Vec<Spanned<'a>>) {
 /// then takes. The DFA of the logos lexer costs several times more per byte.
 ///
 /// ```
-/// use ncpost::front::gcode::lexer::{lex_plain, tokens, Tok};
+/// use ncpost::num::lexer::{lex_plain, tokens, Tok};
 /// let mut toks = Vec::new();
 /// assert!(lex_plain("G1 X-1.5 Y.5 E2. ; move", &mut toks));
 /// assert_eq!(toks, tokens("G1 X-1.5 Y.5 E2. ; move").collect::<Vec<_>>());
@@ -174,7 +174,7 @@ pub fn tokens(line: &str) -> impl Iterator<Item = Spanned<'_>> {
 /// Whether `line` has a word (letter with a number) for `letter`, either case.
 ///
 /// ```
-/// use ncpost::front::gcode::lexer::has_word;
+/// use ncpost::num::lexer::has_word;
 /// assert!(has_word("G1 X1 e0.5", 'E'));
 /// assert!(!has_word("G1 X1 (E5)", 'E'));
 /// ```
