@@ -29,9 +29,9 @@ use ncpost::back::Backend;
 use ncpost::back::gcode::{Options as WriterOptions, Writer};
 use ncpost::front::Frontend;
 use ncpost::front::gcode::ast::Item;
-use ncpost::front::gcode::lexer::{Spanned, lex_line};
 use ncpost::front::gcode::{Options as FrontOptions, Parser, parse_line};
 use ncpost::ir::Block;
+use ncpost::num::lexer::{Spanned, lex_line};
 use ncpost::pipeline::Pipeline;
 
 /// The corpus files: a 3D print, a PCB milling job and an arc-heavy print.

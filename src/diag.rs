@@ -27,6 +27,20 @@ impl Severity {
     }
 }
 
+/// What a diagnostic is about, for the code that acts on it; the `code` string is for
+/// people and may be more precise.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Kind {
+    /// The program being compiled: a line, a move, a value.
+    #[default]
+    Program,
+    /// The run's settings: a preset, a machine definition, a pass's options, a
+    /// command-line value. Shown without a source line.
+    Settings,
+    /// Reading the input or writing the output failed; the output is lost.
+    Io,
+}
+
 /// Where in the source a diagnostic points.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Location {
@@ -58,6 +72,8 @@ pub struct Location {
 pub struct Diagnostic {
     /// Error or warning.
     pub severity: Severity,
+    /// What it is about (program, settings, I/O).
+    pub kind: Kind,
     /// Stable code, `area::kind`.
     pub code: &'static str,
     /// One-line message.
@@ -89,9 +105,33 @@ impl Diagnostic {
         Self::new(Severity::Warning, code, message)
     }
 
+    /// An error in the run's settings (preset, machine, pass options), with the code
+    /// `pipeline::config`.
+    ///
+    /// ```
+    /// use ncpost::diag::{Diagnostic, Kind};
+    /// let d = Diagnostic::settings("unknown pass `foo`");
+    /// assert_eq!((d.kind, d.code), (Kind::Settings, "pipeline::config"));
+    /// ```
+    pub fn settings(message: impl Into<String>) -> Self {
+        Self::new(Severity::Error, "pipeline::config", message).of_kind(Kind::Settings)
+    }
+
+    /// An error reading the input or writing the output (`io::read`, `io::write`).
+    pub fn io(code: &'static str, message: impl Into<String>) -> Self {
+        Self::new(Severity::Error, code, message).of_kind(Kind::Io)
+    }
+
+    /// Sets what the diagnostic is about.
+    pub fn of_kind(mut self, kind: Kind) -> Self {
+        self.kind = kind;
+        self
+    }
+
     fn new(severity: Severity, code: &'static str, message: impl Into<String>) -> Self {
         Diagnostic {
             severity,
+            kind: Kind::Program,
             code,
             message: message.into(),
             location: None,

@@ -28,5 +28,5 @@ pub mod pipeline;
 pub mod plot;
 pub mod preset;
 
-pub use diag::{Diagnostic, Severity};
+pub use diag::{Diagnostic, Kind, Severity};
 pub use pipeline::Pipeline;

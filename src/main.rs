@@ -304,7 +304,7 @@ fn probe_program(args: &ProbeArgs) -> ExitCode {
             |out, _| {
                 out.write_all(text.as_bytes())
                     .map(|_| ncpost::pipeline::Summary::default())
-                    .map_err(|e| Diagnostic::error("io::write", e.to_string()))
+                    .map_err(|e| Diagnostic::io("io::write", e.to_string()))
             },
             &mut Printer::new("-", true, MessageFormat::Human),
         ),
@@ -386,7 +386,7 @@ fn plot(args: &PlotArgs) -> ExitCode {
             |out, _| {
                 out.write_all(svg.as_bytes())
                     .map(|_| summary)
-                    .map_err(|e| Diagnostic::error("io::write", e.to_string()))
+                    .map_err(|e| Diagnostic::io("io::write", e.to_string()))
             },
             &mut printer,
         ),

@@ -22,12 +22,12 @@ use std::sync::OnceLock;
 use ncpost::back::{Backend, gcode as plain, rrf};
 use ncpost::diag::Diagnostic;
 use ncpost::front::Frontend;
-use ncpost::front::gcode::lexer::{Tok, lex_line};
 use ncpost::front::gcode::{Options, Parser, parse_str};
 use ncpost::ir::verify::Verifier;
 use ncpost::ir::{
     Axis, AxisSet, Block, BlockKind, Joints, MotionKind, Plane, Target, VerbatimReason, dump,
 };
+use ncpost::num::lexer::{Tok, lex_line};
 use ncpost::pipeline::compile_str;
 use ncpost::preset::Preset;
 

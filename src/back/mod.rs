@@ -1231,15 +1231,12 @@ fn too_large(letter: char, value: f64, block: &Block) -> Diagnostic {
 }
 
 pub(crate) fn io_error(e: std::io::Error) -> Diagnostic {
-    Diagnostic::error(IO_WRITE, format!("cannot write the output: {e}"))
+    Diagnostic::io("io::write", format!("cannot write the output: {e}"))
 }
-
-/// The code of [`io_error`].
-const IO_WRITE: &str = "io::write";
 
 /// Whether `d` says the output could not be written.
 pub(crate) fn is_io_error(d: &Diagnostic) -> bool {
-    d.code == IO_WRITE
+    d.kind == crate::diag::Kind::Io
 }
 
 impl<W: Write> Backend for Emitter<W> {

@@ -187,7 +187,7 @@ impl<R: BufRead> Source<R> {
     /// Ends the input after a read error, reported as `io::read`.
     fn read_failed(&mut self, e: &std::io::Error, diags: &mut Vec<Diagnostic>) {
         self.done = true;
-        diags.push(Diagnostic::error(
+        diags.push(Diagnostic::io(
             "io::read",
             format!("cannot read the input: {e}"),
         ));

@@ -135,7 +135,7 @@ impl<R: BufRead> Parser<R> {
                 }
                 Err(e) => {
                     self.done = true;
-                    diags.push(Diagnostic::error(
+                    diags.push(Diagnostic::io(
                         "io::read",
                         format!("cannot read the input: {e}"),
                     ));

@@ -206,7 +206,7 @@ impl<R: BufRead> Reader<R> {
         if !self.failed {
             self.failed = true;
             diags.push(
-                Diagnostic::error("io::read", format!("cannot read the input: {e}"))
+                Diagnostic::io("io::read", format!("cannot read the input: {e}"))
                     .with_help("check the file and the device it is on"),
             );
         }
