@@ -633,18 +633,16 @@ impl Relay<'_> {
 }
 
 /// Runs `pass` on the blocks in `cur`, leaving what it passes on in `cur` (`next` is
-/// scratch). A pass that only reads the blocks looks at them where they lie.
+/// scratch; a pass that keeps the batch hands the same vector back).
 fn run_pass(
     pass: &mut Box<dyn Pass>,
     cur: &mut Vec<Block>,
     next: &mut Vec<Block>,
     diags: &mut Vec<Diagnostic>,
 ) {
-    if !pass.observe(cur, diags) {
-        next.clear();
-        pass.run_batch(cur, &mut Output::new(next, diags));
-        std::mem::swap(cur, next);
-    }
+    next.clear();
+    pass.run(cur, &mut Output::new(next, diags));
+    std::mem::swap(cur, next);
 }
 
 /// Writes `blocks` as IR text to the dump.

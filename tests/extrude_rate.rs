@@ -570,7 +570,7 @@ fn run_passes(specs: &[(&str, &str)], polar: &Polar, input: Vec<Block>) -> Vec<B
         {
             let mut o = Output::new(&mut out, &mut diags);
             for b in blocks {
-                pass.run(b, &mut o);
+                pass.run(&mut vec![b], &mut o);
             }
             pass.finish(&mut o);
         }

@@ -84,7 +84,7 @@ fn compensate(src: &str, options: &str) -> (Vec<Block>, Vec<Block>, Vec<Diagnost
     let mut out = Vec::new();
     let mut diags = program.diagnostics.clone();
     for b in program.blocks.iter().cloned() {
-        pass.run(b, &mut Output::new(&mut out, &mut diags));
+        pass.run(&mut vec![b], &mut Output::new(&mut out, &mut diags));
     }
     pass.finish(&mut Output::new(&mut out, &mut diags));
     (program.blocks, out, diags)

@@ -105,7 +105,7 @@ fn run(
     {
         let mut o = Output::new(&mut out, &mut diags);
         for b in blocks {
-            pass.run(b, &mut o);
+            pass.run(&mut vec![b], &mut o);
         }
         pass.finish(&mut o);
     }

@@ -50,7 +50,7 @@ fn order_gcode(src: &str, options: &str) -> (String, String, Vec<Block>, Vec<Dia
     let mut out = Vec::new();
     let mut diags = Vec::new();
     for b in program.blocks.iter().cloned() {
-        pass.run(b, &mut Output::new(&mut out, &mut diags));
+        pass.run(&mut vec![b], &mut Output::new(&mut out, &mut diags));
     }
     pass.finish(&mut Output::new(&mut out, &mut diags));
     let mut verifier = Verifier;

@@ -46,7 +46,7 @@ fn stages(path: &str, preset_name: &str) -> String {
         let mut pass = passes::build(&spec.name, &spec.options, &ctx).expect("pass builds");
         let mut next = Vec::new();
         for b in blocks {
-            pass.run(b, &mut Output::new(&mut next, &mut diags));
+            pass.run(&mut vec![b], &mut Output::new(&mut next, &mut diags));
         }
         pass.finish(&mut Output::new(&mut next, &mut diags));
         blocks = next;

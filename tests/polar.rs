@@ -40,7 +40,7 @@ fn run_ik(p: &Polar, options: &str, src: &str) -> (Vec<Block>, Vec<Block>, Vec<D
     {
         let mut o = Output::new(&mut out, &mut diags);
         for b in input.clone() {
-            pass.run(b, &mut o);
+            pass.run(&mut vec![b], &mut o);
         }
         pass.finish(&mut o);
     }

@@ -24,7 +24,7 @@ fn expand_with(src: &str, options: &str) -> (Vec<Block>, Vec<Diagnostic>) {
     let mut blocks = Vec::new();
     while let Some(b) = parser.next_block(&mut diags) {
         let mut out = Output::new(&mut blocks, &mut diags);
-        pass.run(b, &mut out);
+        pass.run(&mut vec![b], &mut out);
     }
     let mut out = Output::new(&mut blocks, &mut diags);
     pass.finish(&mut out);

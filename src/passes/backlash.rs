@@ -355,12 +355,9 @@ fn linear_length(from: &Joints, to: &Joints) -> f64 {
         .sqrt()
 }
 
-impl Pass for Backlash {
-    fn name(&self) -> &'static str {
-        "backlash"
-    }
-
-    fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
+impl Backlash {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, mut block: Block, out: &mut Output<'_>) {
         match &mut block.kind {
             BlockKind::Motion(m) if m.machine_frame => self.reset(m.written),
             BlockKind::Motion(m) => {
@@ -423,6 +420,14 @@ impl Pass for Backlash {
         // change axes whose position was known, which it leaves alone).
         super::linearize_arcs::track(&mut self.pos, &block);
         out.push(block);
+    }
+}
+
+impl Pass for Backlash {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
+        }
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {

@@ -708,20 +708,20 @@ impl Densify {
 }
 
 impl Pass for Densify {
-    fn name(&self) -> &'static str {
-        "densify"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
-        if !self.advance(&block) {
-            self.split(&block, out);
-        }
-        out.push(block);
-    }
-
-    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
-        // Most moves stay within tolerance and pass unchanged: they are not moved.
-        super::edit_in_place(self, blocks, out, |pass, block, _| pass.advance(block));
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        // Most moves stay within tolerance and pass unchanged, where they lie.
+        super::edit_in_place(
+            self,
+            blocks,
+            out,
+            |pass, block, _| pass.advance(block),
+            |pass, block, out| {
+                if !pass.advance(&block) {
+                    pass.split(&block, out);
+                }
+                out.push(block);
+            },
+        );
     }
 }
 

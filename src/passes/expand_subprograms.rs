@@ -196,12 +196,9 @@ impl ExpandSubprograms {
     }
 }
 
-impl Pass for ExpandSubprograms {
-    fn name(&self) -> &'static str {
-        "expand-subprograms"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl ExpandSubprograms {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, block: Block, out: &mut Output<'_>) {
         if !self.buffering && subprogram_related(&block) {
             self.buffering = true;
         }
@@ -210,6 +207,14 @@ impl Pass for ExpandSubprograms {
         } else {
             let b = self.track.block(block, out.diags);
             out.push(b);
+        }
+    }
+}
+
+impl Pass for ExpandSubprograms {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
         }
     }
 

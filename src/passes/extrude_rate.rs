@@ -1090,18 +1090,23 @@ fn segment_distance(ax: f64, ay: f64, bx: f64, by: f64) -> f64 {
     (ax + dx * s).hypot(ay + dy * s)
 }
 
-impl Pass for ExtrudeRate {
-    fn name(&self) -> &'static str {
-        "extrude-rate"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl ExtrudeRate {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, block: Block, out: &mut Output<'_>) {
         match self.options.mode {
             Mode::EAxis => self.run_e_axis(block, out),
             Mode::ScrewRpm | Mode::ConstantFlow => {
                 self.run_screw(block, out);
                 self.drain(out);
             }
+        }
+    }
+}
+
+impl Pass for ExtrudeRate {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
         }
     }
 

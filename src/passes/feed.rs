@@ -508,32 +508,14 @@ impl Feed {
 }
 
 impl Pass for Feed {
-    fn name(&self) -> &'static str {
-        "feed"
-    }
-
-    fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
-        self.apply(&mut block, out.diags);
-        out.push(block);
-    }
-
-    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
-        // `edit_in_place` with an edit that keeps every block, written out so that the
-        // reading of the position travels from move to move in a local (registers and
-        // same-width spills) and not through `self.prev_read`, whose wide reload of
-        // narrow stores stalled every move.
-        if !out.blocks.is_empty() {
-            for block in blocks.drain(..) {
-                self.run(block, out);
-            }
-            return;
-        }
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        // Every block keeps its place: only feeds change.
         let mut prev_read = self.prev_read;
         for block in blocks.iter_mut() {
             prev_read = self.step(block, prev_read, out.diags);
         }
         self.prev_read = prev_read;
-        std::mem::swap(blocks, out.blocks);
+        out.pass_on(blocks);
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {
@@ -574,13 +556,8 @@ impl Pass for Feed {
 }
 
 impl Feed {
-    /// Sets the F of a cutting move in place and follows the position.
-    fn apply(&mut self, block: &mut Block, diags: &mut Vec<Diagnostic>) {
-        self.prev_read = self.step(block, self.prev_read, diags);
-    }
-
-    /// [`Feed::apply`] with the reading of the position before `block` passed in and the
-    /// one after it returned, so that a batch carries it in registers from move to move.
+    /// Sets the F of a cutting move in place and follows the position: the reading of the
+    /// position before `block` passed in and the one after it returned.
     #[inline(always)]
     fn step(
         &mut self,

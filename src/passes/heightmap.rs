@@ -345,12 +345,9 @@ fn lerp(a: &Joints, b: &Joints, t: f64) -> Joints {
     j
 }
 
-impl Pass for Heightmap {
-    fn name(&self) -> &'static str {
-        "heightmap"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl Heightmap {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, block: Block, out: &mut Output<'_>) {
         let BlockKind::Motion(m) = &block.kind else {
             super::linearize_arcs::track(&mut self.pos, &block);
             out.push(block);
@@ -435,6 +432,14 @@ impl Pass for Heightmap {
                 b.comments = comments.take().unwrap_or_default();
             }
             out.push(b);
+        }
+    }
+}
+
+impl Pass for Heightmap {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
         }
     }
 

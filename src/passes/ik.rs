@@ -825,11 +825,21 @@ impl Ik {
 }
 
 impl Pass for Ik {
-    fn name(&self) -> &'static str {
-        "ik"
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        // Nearly every block is a plain pose move, solved where it lies.
+        super::edit_in_place(
+            self,
+            blocks,
+            out,
+            |pass, block, _| pass.edit(block),
+            Self::block,
+        );
     }
+}
 
-    fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
+impl Ik {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, mut block: Block, out: &mut Output<'_>) {
         if let BlockKind::Motion(m) = &block.kind
             && let Target::Pose(_) = &m.target
         {
@@ -841,12 +851,6 @@ impl Pass for Ik {
         }
         self.track(&block);
         out.push(block);
-    }
-
-    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
-        // Nearly every block is a plain pose move: edited where it lies, not moved
-        // through `run` and out again.
-        super::edit_in_place(self, blocks, out, |pass, block, _| pass.edit(block));
     }
 }
 
@@ -966,7 +970,7 @@ mod tests {
             let mut by_run = Ik::new(m.clone(), options.clone()).unwrap();
             let (mut want, mut want_diags) = (Vec::new(), Vec::new());
             for b in program.clone() {
-                by_run.run(b, &mut Output::new(&mut want, &mut want_diags));
+                by_run.block(b, &mut Output::new(&mut want, &mut want_diags));
             }
 
             let mut by_batch = Ik::new(m, options).unwrap();
@@ -980,7 +984,7 @@ mod tests {
                 let mut batch = std::mem::replace(&mut rest, tail);
                 // The pipeline hands each batch an empty output.
                 let mut out = Vec::new();
-                by_batch.run_batch(&mut batch, &mut Output::new(&mut out, &mut got_diags));
+                by_batch.run(&mut batch, &mut Output::new(&mut out, &mut got_diags));
                 prop_assert!(batch.is_empty());
                 got.append(&mut out);
             }

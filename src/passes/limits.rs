@@ -13,7 +13,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Output, Pass, PassInfo};
+use super::{Check, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Target};
 use crate::machine::Machine;
@@ -60,7 +60,10 @@ pub const INFO: PassInfo = PassInfo {
     summary: "check every joint value against the machine's linear travel and rotary limits",
     build: |t, ctx| {
         let machine = ctx.require_machine("limits")?;
-        Ok(Box::new(Limits::new(machine, super::options(t)?)?))
+        Ok(Box::new(super::Lint(Limits::new(
+            machine,
+            super::options(t)?,
+        )?)))
     },
     defaults: || super::to_toml(&Options::default()),
 };
@@ -92,7 +95,7 @@ impl Limits {
 
     /// Checks one block's joints against the ranges.
     #[inline(always)]
-    fn check(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
+    fn block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
         if let BlockKind::Motion(m) = &block.kind
             && let Target::Joints(j) = &m.target
         {
@@ -189,19 +192,14 @@ impl Limits {
     }
 }
 
-impl Pass for Limits {
-    fn name(&self) -> &'static str {
-        "limits"
-    }
-
-    fn observe(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) -> bool {
+impl Check for Limits {
+    fn check(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) {
         for block in blocks {
-            self.check(block, diags);
+            self.block(block, diags);
         }
-        true
     }
 
-    fn finish(&mut self, out: &mut Output<'_>) {
+    fn finish(&mut self, diags: &mut Vec<Diagnostic>) {
         let cap = self.options.max_reported;
         for o in &self.overruns {
             if cap == 0 || o.count <= cap {
@@ -213,7 +211,7 @@ impl Pass for Limits {
             } else {
                 ("below", "minimum")
             };
-            out.diag(
+            diags.push(
                 Diagnostic::error(
                     "limits::range",
                     format!(

@@ -105,12 +105,9 @@ pub(crate) fn track(pos: &mut Joints, block: &Block) {
     }
 }
 
-impl Pass for LinearizeArcs {
-    fn name(&self) -> &'static str {
-        "linearize-arcs"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl LinearizeArcs {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, block: Block, out: &mut Output<'_>) {
         let BlockKind::Motion(m) = &block.kind else {
             track(&mut self.pos, &block);
             out.push(block);
@@ -168,5 +165,13 @@ impl Pass for LinearizeArcs {
             out.push(b);
         }
         self.pos = path.to;
+    }
+}
+
+impl Pass for LinearizeArcs {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
+        }
     }
 }

@@ -218,18 +218,23 @@ impl Mirror {
     }
 }
 
-impl Pass for Mirror {
-    fn name(&self) -> &'static str {
-        "mirror"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl Mirror {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, block: Block, out: &mut Output<'_>) {
         match self.shift {
             Some(s) => self.mirror(block, s, out),
             None => {
                 self.observe(&block);
                 self.held.push(block);
             }
+        }
+    }
+}
+
+impl Pass for Mirror {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
         }
     }
 
@@ -266,9 +271,10 @@ mod tests {
         let p = parse_str(src, &GOptions::default()).unwrap();
         let mut pass = Mirror::new(options).unwrap();
         let (mut blocks, mut diags) = (Vec::new(), Vec::new());
-        for b in p.blocks {
-            pass.run(b, &mut Output::new(&mut blocks, &mut diags));
-        }
+        pass.run(
+            &mut p.blocks.clone(),
+            &mut Output::new(&mut blocks, &mut diags),
+        );
         pass.finish(&mut Output::new(&mut blocks, &mut diags));
         (blocks, diags)
     }

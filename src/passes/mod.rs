@@ -71,6 +71,14 @@ impl<'a> Output<'a> {
     pub fn push(&mut self, block: Block) {
         self.blocks.push(block);
     }
+    /// Passes a whole batch on, leaving `blocks` empty.
+    pub fn pass_on(&mut self, blocks: &mut Vec<Block>) {
+        if self.blocks.is_empty() {
+            std::mem::swap(blocks, self.blocks);
+        } else {
+            self.blocks.append(blocks);
+        }
+    }
     /// Reports a diagnostic.
     pub fn diag(&mut self, diag: Diagnostic) {
         self.diags.push(diag);
@@ -79,66 +87,87 @@ impl<'a> Output<'a> {
 
 /// A transformation over the block stream.
 ///
-/// A pass may hold back a bounded number of blocks (look-ahead) and must release them
-/// in [`Pass::finish`]. Passes are `Send`: the pipeline's two threads take turns running
-/// them, one batch at a time and in input order.
+/// The pipeline hands a pass the blocks of the input in batches, in order, and calls
+/// [`Pass::finish`] once after the last one. A pass moves or edits the blocks of a batch
+/// into `out` (all of them, or what it makes of them) and may hold back a bounded number
+/// for look-ahead, which it must release by `finish`. Passes are `Send`: the pipeline's
+/// two threads take turns running them.
+///
+/// A pass that only reads blocks is a [`Check`], wrapped in [`Lint`].
+///
+/// ```
+/// use ncpost::ir::{Block, BlockKind, Span};
+/// use ncpost::passes::{Output, Pass};
+///
+/// /// Drops comment blocks.
+/// struct NoComments;
+/// impl Pass for NoComments {
+///     fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+///         blocks.retain(|b| !matches!(b.kind, BlockKind::Comment));
+///         out.pass_on(blocks);
+///     }
+/// }
+///
+/// let mut batch = vec![Block::new(Span::default(), BlockKind::Comment)];
+/// let (mut blocks, mut diags) = (Vec::new(), Vec::new());
+/// NoComments.run(&mut batch, &mut Output::new(&mut blocks, &mut diags));
+/// assert!(blocks.is_empty() && batch.is_empty());
+/// ```
 pub trait Pass: Send {
-    /// The kebab-case name, as in [`REGISTRY`].
-    fn name(&self) -> &'static str;
-    /// Consumes one block and pushes zero or more blocks. The default is for a pass that
-    /// only reads blocks: it observes the block alone and passes it on; every pass that
-    /// changes blocks implements this.
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
-        self.observe(std::slice::from_ref(&block), out.diags);
-        out.push(block);
-    }
-    /// Consumes a batch of blocks, in order, as [`Pass::run`] on each (which it calls).
-    /// The pipeline calls this one: one call through the vtable per batch, and the loop,
-    /// made for each pass, calls `run` directly (each block is still copied into `run`'s
-    /// argument).
-    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
-        for block in blocks.drain(..) {
-            self.run(block, out);
-        }
-    }
-    /// A pass that only reads blocks (a check) looks at a whole batch where it lies and
-    /// returns `true`: the blocks then go on as they are, without being moved through
-    /// [`Pass::run`] (whose default then serves a block at a time). The default returns
-    /// `false`, and the pipeline calls `run` on each block.
-    fn observe(&mut self, _blocks: &[Block], _diags: &mut Vec<Diagnostic>) -> bool {
-        false
-    }
-    /// Called once after the last block.
+    /// Takes every block of `blocks`, in order, and puts what comes of them into `out`;
+    /// `blocks` is left empty.
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>);
+    /// Called once after the last batch: releases held blocks and reports summaries.
     fn finish(&mut self, _out: &mut Output<'_>) {}
 }
 
-/// [`Pass::run_batch`] for a pass that changes most blocks where they lie, one block in
-/// and the same block out: `edit` changes a block in place and returns true, or returns
-/// false and leaves it (and the pass) untouched, and then that block and the rest of the
-/// batch go through [`Pass::run`]. A batch edited whole is handed on as it is, without
-/// moving its blocks (a few hundred bytes each) into `run` and out again.
-pub fn edit_in_place<P: Pass + ?Sized>(
+/// A read-only check over the block stream: it reports diagnostics and never changes a
+/// block. [`Lint`] makes it a [`Pass`].
+pub trait Check: Send {
+    /// Looks at one batch of blocks, in order.
+    fn check(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>);
+    /// Called once after the last batch, for summaries.
+    fn finish(&mut self, _diags: &mut Vec<Diagnostic>) {}
+}
+
+/// A [`Check`] run as a [`Pass`]: the blocks go on as they are.
+pub struct Lint<C>(pub C);
+
+impl<C: Check> Pass for Lint<C> {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        self.0.check(blocks, out.diags);
+        out.pass_on(blocks);
+    }
+    fn finish(&mut self, out: &mut Output<'_>) {
+        self.0.finish(out.diags);
+    }
+}
+
+/// [`Pass::run`] for a pass that changes most blocks where they lie, one block in and the
+/// same block out: `edit` changes a block in place and returns true, or returns false and
+/// leaves it (and the pass) untouched; that block and the rest of the batch then go one by
+/// one through `each`, which may put out any number of blocks for each.
+pub fn edit_in_place<P: ?Sized>(
     pass: &mut P,
     blocks: &mut Vec<Block>,
     out: &mut Output<'_>,
     mut edit: impl FnMut(&mut P, &mut Block, &mut Vec<Diagnostic>) -> bool,
+    mut each: impl FnMut(&mut P, Block, &mut Output<'_>),
 ) {
-    if out.blocks.is_empty() {
-        let mut edited = 0;
-        while let Some(block) = blocks.get_mut(edited) {
-            if !edit(pass, block, out.diags) {
-                break;
-            }
-            edited += 1;
+    let mut edited = 0;
+    while let Some(block) = blocks.get_mut(edited) {
+        if !edit(pass, block, out.diags) {
+            break;
         }
-        if edited == blocks.len() {
-            std::mem::swap(blocks, out.blocks);
-            return;
-        }
-        out.blocks.extend(blocks.drain(..edited));
+        edited += 1;
     }
+    if edited == blocks.len() {
+        out.pass_on(blocks);
+        return;
+    }
+    out.blocks.extend(blocks.drain(..edited));
     for block in blocks.drain(..) {
-        pass.run(block, out);
+        each(pass, block, out);
     }
 }
 
@@ -189,8 +218,7 @@ pub fn lookup(name: &str) -> Option<&'static PassInfo> {
 /// ```
 /// let opts: toml::Table = toml::from_str("rapid_feed = 5000.0").unwrap();
 /// let ctx = ncpost::passes::Context::default();
-/// let pass = ncpost::passes::build("stats", &opts, &ctx).unwrap();
-/// assert_eq!(pass.name(), "stats");
+/// assert!(ncpost::passes::build("stats", &opts, &ctx).is_ok());
 /// assert!(ncpost::passes::build("stats", &toml::from_str("bogus = 1").unwrap(), &ctx).is_err());
 /// ```
 pub fn build(
@@ -257,7 +285,7 @@ mod tests {
     use crate::ir::{BlockKind, Span};
 
     /// Numbers each block it sees in its span's length; a block on a line divisible by
-    /// three is refused in place and gets a comment block put before it by `run`.
+    /// three is refused in place and gets a comment block put before it.
     struct Numbering {
         seen: u32,
     }
@@ -271,13 +299,8 @@ mod tests {
             block.span.len = self.seen;
             true
         }
-    }
 
-    impl Pass for Numbering {
-        fn name(&self) -> &'static str {
-            "numbering"
-        }
-        fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
+        fn each(&mut self, mut block: Block, out: &mut Output<'_>) {
             if block.span.line.is_multiple_of(3) {
                 out.push(Block::new(Span::default(), BlockKind::Comment));
                 self.seen += 1;
@@ -287,8 +310,11 @@ mod tests {
             }
             out.push(block);
         }
-        fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
-            edit_in_place(self, blocks, out, |p, b, _| p.edit(b));
+    }
+
+    impl Pass for Numbering {
+        fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+            edit_in_place(self, blocks, out, |p, b, _| p.edit(b), Self::each);
         }
     }
 
@@ -306,7 +332,7 @@ mod tests {
     }
 
     #[test]
-    fn editing_in_place_gives_what_run_gives() {
+    fn editing_in_place_gives_what_each_block_gives() {
         for case in [
             &[1, 2, 4][..],
             &[1, 3, 4, 6, 7],
@@ -314,23 +340,23 @@ mod tests {
             &[],
             &[2, 1, 3],
         ] {
-            let (mut by_run, mut diags) = (Vec::new(), Vec::new());
+            let (mut by_block, mut diags) = (Vec::new(), Vec::new());
             let mut pass = Numbering { seen: 0 };
             for b in lines(case) {
-                pass.run(b, &mut Output::new(&mut by_run, &mut diags));
+                pass.each(b, &mut Output::new(&mut by_block, &mut diags));
             }
             let mut pass = Numbering { seen: 0 };
             let mut blocks = lines(case);
             let mut edited = Vec::new();
-            pass.run_batch(&mut blocks, &mut Output::new(&mut edited, &mut diags));
-            assert_eq!(edited, by_run, "{case:?}");
+            pass.run(&mut blocks, &mut Output::new(&mut edited, &mut diags));
+            assert_eq!(edited, by_block, "{case:?}");
             assert!(blocks.is_empty());
         }
         // Blocks already in the output stay first.
         let mut pass = Numbering { seen: 0 };
         let mut out = lines(&[9]);
         let mut diags = Vec::new();
-        pass.run_batch(&mut lines(&[1, 2]), &mut Output::new(&mut out, &mut diags));
+        pass.run(&mut lines(&[1, 2]), &mut Output::new(&mut out, &mut diags));
         let got: Vec<(u32, u32)> = out.iter().map(|b| (b.span.line, b.span.len)).collect();
         assert_eq!(got, [(9, 0), (1, 1), (2, 2)]);
     }

@@ -208,12 +208,9 @@ fn fmt_num(v: f64) -> String {
     }
 }
 
-impl Pass for Normalize {
-    fn name(&self) -> &'static str {
-        "normalize"
-    }
-
-    fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
+impl Normalize {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, mut block: Block, out: &mut Output<'_>) {
         let span = block.span;
         match &mut block.kind {
             BlockKind::Offset(change) => {
@@ -372,6 +369,14 @@ impl Pass for Normalize {
             _ => {}
         }
         out.push(block);
+    }
+}
+
+impl Pass for Normalize {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
+        }
     }
 }
 

@@ -982,12 +982,9 @@ impl<'a> Improver<'a> {
     }
 }
 
-impl Pass for OrderPaths {
-    fn name(&self) -> &'static str {
-        "order-paths"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl OrderPaths {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, block: Block, out: &mut Output<'_>) {
         if !self.held.is_empty() {
             if Self::program_end(&block) {
                 self.release(End::Free, out);
@@ -1088,6 +1085,14 @@ impl Pass for OrderPaths {
                 _ if !self.seg.groups.is_empty() => self.held.push(block),
                 _ => self.barrier(block, End::Free, out),
             },
+        }
+    }
+}
+
+impl Pass for OrderPaths {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
         }
     }
 

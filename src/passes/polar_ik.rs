@@ -1081,12 +1081,9 @@ fn segment_distance(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
     (a + d * s).norm()
 }
 
-impl Pass for PolarIk {
-    fn name(&self) -> &'static str {
-        "polar-ik"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl PolarIk {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, block: Block, out: &mut Output<'_>) {
         if self.options.kinematics == Kinematics::Controller {
             self.run_controller(block, out);
             return;
@@ -1149,6 +1146,14 @@ impl Pass for PolarIk {
                 });
             }
             kind => out.push(Block { kind, ..block }),
+        }
+    }
+}
+
+impl Pass for PolarIk {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
         }
     }
 }

@@ -15,7 +15,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Context, Output, Pass, PassInfo};
+use super::{Check, Context, PassInfo};
 use crate::back::Backend;
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
@@ -98,7 +98,12 @@ pub const INFO: PassInfo = PassInfo {
     name: "stats",
     // The summary stays as `ncpost passes` has always listed it (tests/cli.rs snapshots it).
     summary: "report path lengths, a time estimate, the bounding box and block counts",
-    build: |t, ctx| Ok(Box::new(Stats::from_context(&super::options(t)?, ctx))),
+    build: |t, ctx| {
+        Ok(Box::new(super::Lint(Stats::from_context(
+            &super::options(t)?,
+            ctx,
+        ))))
+    },
     defaults: || super::to_toml(&Options::default()),
 };
 
@@ -356,21 +361,16 @@ impl Stats {
     }
 }
 
-impl Pass for Stats {
-    fn name(&self) -> &'static str {
-        "stats"
-    }
-
-    fn observe(&mut self, blocks: &[Block], _diags: &mut Vec<Diagnostic>) -> bool {
+impl Check for Stats {
+    fn check(&mut self, blocks: &[Block], _diags: &mut Vec<Diagnostic>) {
         for block in blocks {
             self.count(block);
         }
-        true
     }
 
-    fn finish(&mut self, out: &mut Output<'_>) {
+    fn finish(&mut self, diags: &mut Vec<Diagnostic>) {
         self.end();
-        out.diag(Diagnostic::note("stats::report", self.report()));
+        diags.push(Diagnostic::note("stats::report", self.report()));
     }
 }
 

@@ -174,12 +174,9 @@ impl Transform {
     }
 }
 
-impl Pass for Transform {
-    fn name(&self) -> &'static str {
-        "transform"
-    }
-
-    fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
+impl Transform {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, mut block: Block, out: &mut Output<'_>) {
         let mut problem: Option<(&'static str, &'static str, &'static str)> = None;
         let mut unchanged = false;
         match &mut block.kind {
@@ -261,5 +258,13 @@ impl Pass for Transform {
             );
         }
         out.push(block);
+    }
+}
+
+impl Pass for Transform {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
+        }
     }
 }

@@ -269,20 +269,9 @@ impl UnwrapRotary {
 }
 
 impl Pass for UnwrapRotary {
-    fn name(&self) -> &'static str {
-        "unwrap-rotary"
-    }
-
-    fn run(&mut self, mut block: Block, out: &mut Output<'_>) {
-        if let Some(change) = self.apply(&mut block, out.diags) {
-            out.push(Block::new(block.span, BlockKind::Offset(change)));
-        }
-        out.push(block);
-    }
-
-    fn run_batch(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
-        super::edit_in_place(self, blocks, out, |pass, block, diags| {
-            // A rapid may need a G92 before it, which only `run` can add.
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        let edit = |pass: &mut Self, block: &mut Block, diags: &mut Vec<Diagnostic>| {
+            // A rapid may need a G92 before it, which only `each` can add.
             let may_rebase = pass.options.rebase
                 && matches!(&block.kind, BlockKind::Motion(m)
                     if matches!(m.kind, MotionKind::Rapid) && !m.machine_frame);
@@ -292,7 +281,14 @@ impl Pass for UnwrapRotary {
             let rebase = pass.apply(block, diags);
             debug_assert!(rebase.is_none(), "only a rapid is re-based");
             true
-        });
+        };
+        let each = |pass: &mut Self, mut block: Block, out: &mut Output<'_>| {
+            if let Some(change) = pass.apply(&mut block, out.diags) {
+                out.push(Block::new(block.span, BlockKind::Offset(change)));
+            }
+            out.push(block);
+        };
+        super::edit_in_place(self, blocks, out, edit, each);
     }
 }
 

@@ -1482,14 +1482,19 @@ impl ValveLookahead {
     }
 }
 
-impl Pass for ValveLookahead {
-    fn name(&self) -> &'static str {
-        "valve-lookahead"
-    }
-
-    fn run(&mut self, block: Block, out: &mut Output<'_>) {
+impl ValveLookahead {
+    /// One block of the input: puts out what becomes of it.
+    fn block(&mut self, block: Block, out: &mut Output<'_>) {
         let (kind, extruding) = self.classify(&block, out);
         self.push(block, kind, extruding, out);
+    }
+}
+
+impl Pass for ValveLookahead {
+    fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        for block in blocks.drain(..) {
+            self.block(block, out);
+        }
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Pass, PassInfo};
+use super::{Check, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::Block;
 use crate::ir::verify::Verifier;
@@ -23,26 +23,21 @@ pub const INFO: PassInfo = PassInfo {
     summary: "check the IR invariants (spans, finite numbers, known axes, unit tool axes)",
     build: |t, _| {
         let _: Options = super::options(t)?;
-        Ok(Box::new(Verify { verifier: Verifier }))
+        Ok(Box::new(super::Lint(Verify { verifier: Verifier })))
     },
     defaults: || super::to_toml(&Options::default()),
 };
 
-impl Pass for Verify {
-    fn name(&self) -> &'static str {
-        "verify"
-    }
-
-    fn observe(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) -> bool {
+impl Check for Verify {
+    fn check(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) {
         for block in blocks {
-            self.check(block, diags);
+            self.block(block, diags);
         }
-        true
     }
 }
 
 impl Verify {
-    fn check(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
+    fn block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
         if let Err(e) = self.verifier.check(block) {
             diags.push(
                 Diagnostic::error("ir::invariant", format!("IR invariant broken: {e}"))

@@ -14,7 +14,7 @@ pub fn run_passes(blocks: Vec<Block>, specs: &[&str]) -> (Vec<Block>, Vec<Diagno
         let mut pass = passes::build(&name, &table, &Context::default()).expect("builds");
         let mut next = Vec::new();
         for b in cur {
-            pass.run(b, &mut Output::new(&mut next, &mut diags));
+            pass.run(&mut vec![b], &mut Output::new(&mut next, &mut diags));
         }
         pass.finish(&mut Output::new(&mut next, &mut diags));
         cur = next;
