@@ -11,6 +11,8 @@
 # profile is built without LTO for both binaries: Rust does not contract or reorder
 # floating-point arithmetic, so the printed numbers do not depend on the optimiser.
 #
+# GOLDEN_BASE_BIN=PATH uses an already built baseline binary instead.
+#
 # Exit status: 0 when every case is identical, 1 when one differs (the differing cases are
 # listed with the first lines of their diff), 2 on a usage or build error.
 set -euo pipefail
@@ -24,7 +26,7 @@ export CARGO_PROFILE_RELEASE_LTO=false CARGO_PROFILE_RELEASE_CODEGEN_UNITS=16
 
 GOLD=$ROOT/target/golden
 BASE_SRC=$GOLD/$BASE_REV/src
-BASE_BIN=$GOLD/$BASE_REV/ncpost
+BASE_BIN=${GOLDEN_BASE_BIN:-$GOLD/$BASE_REV/ncpost}
 mkdir -p "$GOLD"
 if [ ! -x "$BASE_BIN" ]; then
     rm -rf "$BASE_SRC"

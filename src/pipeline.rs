@@ -181,7 +181,7 @@ impl Builder {
             {
                 options.insert("input".into(), toml::Value::Table(t));
             }
-            passes.push(passes::build(&spec.name, &options, &context)?);
+            passes.push(passes::build(&spec.name, &options, &context).map_err(|d| d.message)?);
         }
         let dump_at = match &self.dump_after {
             None => None,

@@ -255,7 +255,7 @@ fn origin_policy_option_overrides_the_machine() {
         ..Context::default()
     };
     let err = passes::build("polar-ik", &opts, &ctx).err().expect("error");
-    assert!(err.contains("negative_r"), "{err}");
+    assert!(err.message.contains("negative_r"), "{err}");
 }
 
 #[test]

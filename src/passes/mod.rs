@@ -47,11 +47,11 @@ pub struct Context<'a> {
 
 impl<'a> Context<'a> {
     /// The machine, or the error a pass that needs one reports.
-    pub fn require_machine(&self, pass: &str) -> Result<&'a Machine, String> {
+    pub fn require_machine(&self, pass: &str) -> Result<&'a Machine, Diagnostic> {
         self.machine.ok_or_else(|| {
-            format!(
+            Diagnostic::settings(format!(
                 "pass `{pass}` needs a machine: use a preset with a [machine] table (for example --preset emoc-x5)"
-            )
+            ))
         })
     }
 }
@@ -172,7 +172,7 @@ pub fn edit_in_place<P: ?Sized>(
 }
 
 /// Builds a pass from its options table and the pipeline context.
-pub type BuildFn = fn(&toml::Table, &Context<'_>) -> Result<Box<dyn Pass>, String>;
+pub type BuildFn = fn(&toml::Table, &Context<'_>) -> Result<Box<dyn Pass>, Diagnostic>;
 
 /// What the registry knows about a pass.
 pub struct PassInfo {
@@ -225,22 +225,25 @@ pub fn build(
     name: &str,
     options: &toml::Table,
     context: &Context<'_>,
-) -> Result<Box<dyn Pass>, String> {
+) -> Result<Box<dyn Pass>, Diagnostic> {
     let info = lookup(name).ok_or_else(|| {
         let names: Vec<&str> = REGISTRY.iter().map(|p| p.name).collect();
-        format!(
+        Diagnostic::settings(format!(
             "unknown pass `{name}`; the passes are: {}",
             names.join(", ")
-        )
+        ))
     })?;
-    (info.build)(options, context).map_err(|e| format!("options of pass `{name}`: {e}"))
+    (info.build)(options, context).map_err(|mut d| {
+        d.message = format!("options of pass `{name}`: {}", d.message);
+        d
+    })
 }
 
 /// Deserialises a pass's options struct from a table.
-pub fn options<T: DeserializeOwned>(table: &toml::Table) -> Result<T, String> {
+pub fn options<T: DeserializeOwned>(table: &toml::Table) -> Result<T, Diagnostic> {
     toml::Value::Table(table.clone())
         .try_into()
-        .map_err(|e: toml::de::Error| e.message().to_string())
+        .map_err(|e: toml::de::Error| Diagnostic::settings(e.message()))
 }
 
 /// TOML text of a value (for `ncpost passes` and presets).
