@@ -312,13 +312,9 @@ fn probe_program(args: &ProbeArgs) -> ExitCode {
 }
 
 /// The preset named by `--preset` / `--config` (default: `default`).
-fn load_preset(preset: Option<&str>, config: Option<&Path>) -> Result<Preset, String> {
+fn load_preset(preset: Option<&str>, config: Option<&Path>) -> Result<Preset, Diagnostic> {
     match config {
-        Some(path) => {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-            Preset::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))
-        }
+        Some(path) => preset_file(path),
         None => Preset::load(preset.unwrap_or("default")),
     }
 }
@@ -326,7 +322,7 @@ fn load_preset(preset: Option<&str>, config: Option<&Path>) -> Result<Preset, St
 fn config_g(args: &PresetArgs) -> ExitCode {
     let preset = match load_preset(args.preset.as_deref(), args.config.as_deref()) {
         Ok(p) => p,
-        Err(e) => return usage(e),
+        Err(e) => return usage(e.message),
     };
     let Some(machine) = preset.machine else {
         return usage("this preset has no [machine] table; try --preset emoc-x5");
@@ -343,7 +339,7 @@ fn plot(args: &PlotArgs) -> ExitCode {
     let pipeline_args = &args.pipeline;
     let mut pipeline = match builder(pipeline_args, None, None).and_then(|b| b.build()) {
         Ok(p) => p,
-        Err(e) => return usage(e),
+        Err(e) => return usage(e.message),
     };
     let source = source_of(pipeline_args);
     let (input, file_name) = match open_input(&pipeline_args.input) {
@@ -407,7 +403,9 @@ fn stats(args: &StatsArgs) -> ExitCode {
             .position(|p| p.name == "stats")
             .map(|i| preset.passes.remove(i).options);
         let options: passes::stats::Options = match own {
-            Some(t) => passes::options(&t).map_err(|e| format!("options of pass `stats`: {e}"))?,
+            Some(t) => passes::options(&t).map_err(|e| {
+                Diagnostic::settings(format!("options of pass `stats`: {}", e.message))
+            })?,
             None => passes::stats::Options::default(),
         };
         let mut b = Pipeline::builder().preset(preset);
@@ -418,7 +416,7 @@ fn stats(args: &StatsArgs) -> ExitCode {
     });
     let (mut pipeline, mut options) = match built {
         Ok(x) => x,
-        Err(e) => return usage(e),
+        Err(e) => return usage(e.message),
     };
     let source = source_of(pipeline_args);
     let (input, file_name) = match open_input(&pipeline_args.input) {
@@ -492,8 +490,8 @@ fn print_out(args: std::fmt::Arguments<'_>) {
     }
 }
 
-fn usage(msg: impl std::fmt::Display) -> ExitCode {
-    eprintln!("error: {msg}");
+fn usage(msg: impl AsRef<str>) -> ExitCode {
+    eprintln!("error: {}", msg.as_ref());
     ExitCode::from(EXIT_USAGE)
 }
 
@@ -507,7 +505,7 @@ fn run(
 ) -> ExitCode {
     let builder = match builder(args, emit, dump_after) {
         Ok(b) => b,
-        Err(e) => return usage(e),
+        Err(e) => return usage(e.message),
     };
     let source = match args.from.unwrap_or_else(|| from_extension(&args.input)) {
         FromArg::Gcode => Source::Gcode,
@@ -527,7 +525,7 @@ fn run(
     }
     let mut pipeline = match builder.build() {
         Ok(p) => p,
-        Err(e) => return usage(e),
+        Err(e) => return usage(e.message),
     };
 
     let stdin_input = args.input.as_os_str() == "-";
@@ -772,16 +770,22 @@ fn same_file(a: &Path, b: &Path) -> bool {
     }
 }
 
+/// The preset in the file at `path` (`--config`).
+fn preset_file(path: &Path) -> Result<Preset, Diagnostic> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Diagnostic::settings(format!("cannot read {}: {e}", path.display())))?;
+    Preset::from_toml(&text)
+        .map_err(|e| Diagnostic::settings(format!("{}: {}", path.display(), e.message)))
+}
+
 fn builder(
     args: &PipelineArgs,
     emit: Option<EmitArg>,
     dump_after: Option<&str>,
-) -> Result<Builder, String> {
+) -> Result<Builder, Diagnostic> {
     let mut b = Pipeline::builder();
     if let Some(path) = &args.config {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
-        b = b.preset(Preset::from_toml(&text).map_err(|e| format!("{}: {e}", path.display()))?);
+        b = b.preset(preset_file(path)?);
     } else {
         b = b.preset_name(args.preset.as_deref().unwrap_or("default"))?;
     }
@@ -789,10 +793,10 @@ fn builder(
         let (name, table) = passes::parse_spec(spec)?;
         if passes::lookup(&name).is_none() {
             let names: Vec<&str> = passes::REGISTRY.iter().map(|p| p.name).collect();
-            return Err(format!(
+            return Err(Diagnostic::settings(format!(
                 "unknown pass `{name}`; the passes are: {}",
                 names.join(", ")
-            ));
+            )));
         }
         b = b.pass(&name, table);
     }

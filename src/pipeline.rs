@@ -91,7 +91,7 @@ impl Builder {
     }
 
     /// Starts from a built-in preset or a preset file.
-    pub fn preset_name(self, name: &str) -> Result<Self, String> {
+    pub fn preset_name(self, name: &str) -> Result<Self, Diagnostic> {
         Ok(self.preset(Preset::load(name)?))
     }
 
@@ -136,7 +136,7 @@ impl Builder {
     ///
     /// Grbl has no subprograms: with `emit = grbl`, `expand-subprograms` is put first
     /// when the preset lacks it, and the run starts with a note saying so.
-    pub fn build(mut self) -> Result<Pipeline, String> {
+    pub fn build(mut self) -> Result<Pipeline, Diagnostic> {
         let mut notes = Vec::new();
         if self.preset.emit == Emit::Grbl
             && !self
@@ -158,7 +158,8 @@ impl Builder {
             ));
         }
         if let Some(m) = &self.preset.machine {
-            m.check().map_err(|e| format!("[machine]: {e}"))?;
+            m.check()
+                .map_err(|e| Diagnostic::settings(format!("[machine]: {e}")))?;
         }
         let context = passes::Context {
             machine: self.preset.machine.as_ref(),
@@ -181,7 +182,7 @@ impl Builder {
             {
                 options.insert("input".into(), toml::Value::Table(t));
             }
-            passes.push(passes::build(&spec.name, &options, &context).map_err(|d| d.message)?);
+            passes.push(passes::build(&spec.name, &options, &context)?);
         }
         let dump_at = match &self.dump_after {
             None => None,
@@ -193,7 +194,7 @@ impl Builder {
                     .position(|p| p.name == *n)
                     .map(|i| i + 1)
                     .ok_or_else(|| {
-                        format!("--dump-after {n}: the pipeline has no pass `{n}` (use `front` for the frontend's output)")
+                        Diagnostic::settings(format!("--dump-after {n}: the pipeline has no pass `{n}` (use `front` for the frontend's output)"))
                     })?,
             ),
         };
@@ -283,14 +284,8 @@ impl Pipeline {
             let mut notes = self.notes.clone();
             report(&mut notes, on_diag, &mut summary);
         }
-        let preset = &self.preset;
         let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
-        let backend: Box<dyn Backend + Send + '_> = match preset.emit {
-            Emit::Rrf => Box::new(back::rrf::Writer::new(&mut out, &preset.rrf)),
-            Emit::Gcode => Box::new(back::gcode::Writer::new(&mut out, &preset.gcode)),
-            Emit::Grbl => Box::new(back::grbl::Writer::new(&mut out, &preset.grbl)),
-            Emit::Ir => Box::new(back::ir::Writer::new(&mut out)),
-        };
+        let backend = backend_for(&self.preset, &mut out);
         let progress = &mut self.progress;
         let mut io_error = None;
         let mut deliver = |reports: Vec<Vec<Diagnostic>>, summary: &mut Summary| {
@@ -306,89 +301,8 @@ impl Pipeline {
             report(&mut rest, on_diag, summary);
         };
         let (aborted, written, failed) = {
-            // Each stage gets the dump point at its input.
-            let dump_at = self.stages.dump_at;
-            let mut dump = self.stages.dump.as_mut();
-            let count = self.stages.passes.len();
-            let passes: Vec<Mutex<PassStage<'_>>> = self
-                .stages
-                .passes
-                .iter_mut()
-                .enumerate()
-                .map(|(i, pass)| {
-                    let dump = if dump_at == Some(i) {
-                        dump.take()
-                    } else {
-                        None
-                    };
-                    Mutex::new(PassStage { pass, dump })
-                })
-                .collect();
-            let writer = Mutex::new(WriterStage {
-                backend,
-                dump: if dump_at == Some(count) {
-                    dump.take()
-                } else {
-                    None
-                },
-                written: 0,
-            });
-            let relay = Relay {
-                schedule: Schedule::new(count + 1),
-                passes,
-                writer,
-                failed: AtomicBool::new(false),
-                reports: Mutex::new(Vec::new()),
-                spare: Mutex::new(Vec::new()),
-            };
-            std::thread::scope(|scope| {
-                let worker = scope.spawn(|| {
-                    let mut next = Vec::with_capacity(BATCH);
-                    while let Some(task) = relay.schedule.next(false) {
-                        if let Task::Stage(k, batch) = task {
-                            relay.stage_caught(k, batch, &mut next);
-                        }
-                    }
-                });
-                let mut next = Vec::with_capacity(BATCH);
-                let mut seq = 0u64;
-                let mut counter = 0u64;
-                while let Some(task) = relay.schedule.next(true) {
-                    match task {
-                        Task::Read if relay.failed.load(Ordering::Acquire) => {
-                            // Nothing more can be written: stop reading.
-                            relay.schedule.read_done(None);
-                        }
-                        Task::Read => {
-                            let mut blocks = relay.spare_batch();
-                            let mut diags = Vec::new();
-                            front.next_batch(&mut blocks, BATCH, &mut diags);
-                            let end = blocks.is_empty();
-                            summary.blocks_in += blocks.len() as u64;
-                            counter += blocks.len() as u64;
-                            if counter >= 1 << 14 {
-                                counter = 0;
-                                if let Some(p) = progress.as_mut() {
-                                    p(front.bytes_read());
-                                }
-                            }
-                            relay.schedule.read_done(Some(Batch {
-                                seq,
-                                blocks,
-                                diags,
-                                end,
-                            }));
-                            seq += 1;
-                        }
-                        Task::Stage(k, batch) => relay.stage_caught(k, batch, &mut next),
-                    }
-                    deliver(relay.take_reports(), &mut summary);
-                }
-                if worker.join().is_err() {
-                    relay.schedule.abort();
-                }
-            });
-            deliver(relay.take_reports(), &mut summary);
+            let relay = self.stages.relay(backend);
+            relay.drive(front, progress, &mut summary, &mut deliver);
             let aborted = relay.schedule.aborted();
             let written = relay
                 .writer
@@ -491,7 +405,57 @@ impl Pipeline {
     }
 }
 
+/// The preset's backend, writing to `out`.
+fn backend_for<'a>(
+    preset: &'a Preset,
+    out: &'a mut (impl Write + Send),
+) -> Box<dyn Backend + Send + 'a> {
+    match preset.emit {
+        Emit::Rrf => Box::new(back::rrf::Writer::new(out, &preset.rrf)),
+        Emit::Gcode => Box::new(back::gcode::Writer::new(out, &preset.gcode)),
+        Emit::Grbl => Box::new(back::grbl::Writer::new(out, &preset.grbl)),
+        Emit::Ir => Box::new(back::ir::Writer::new(out)),
+    }
+}
+
 impl Stages {
+    /// The passes and `backend` as the stages of one run, each stage with the IR dump of
+    /// its input when the dump point is there.
+    fn relay<'a>(&'a mut self, backend: Box<dyn Backend + Send + 'a>) -> Relay<'a> {
+        let dump_at = self.dump_at;
+        let mut dump = self.dump.as_mut();
+        let count = self.passes.len();
+        let mut dump_before = |i: usize| {
+            if dump_at == Some(i) {
+                dump.take()
+            } else {
+                None
+            }
+        };
+        let passes: Vec<Mutex<PassStage<'_>>> = self
+            .passes
+            .iter_mut()
+            .enumerate()
+            .map(|(i, pass)| {
+                let dump = dump_before(i);
+                Mutex::new(PassStage { pass, dump })
+            })
+            .collect();
+        let writer = Mutex::new(WriterStage {
+            backend,
+            dump: dump_before(count),
+            written: 0,
+        });
+        Relay {
+            schedule: Schedule::new(count + 1),
+            passes,
+            writer,
+            failed: AtomicBool::new(false),
+            reports: Mutex::new(Vec::new()),
+            spare: Mutex::new(Vec::new()),
+        }
+    }
+
     /// All passes as one part.
     fn whole(&mut self) -> Part<'_> {
         Part {
@@ -538,6 +502,67 @@ struct Relay<'a> {
 }
 
 impl Relay<'_> {
+    /// Runs the whole input through the stages on this thread and one more: this one
+    /// reads the frontend whenever the schedule asks for input, both run whichever stage
+    /// is due. `deliver` gets each written batch's diagnostics, in input order.
+    fn drive(
+        &self,
+        front: &mut dyn Frontend,
+        progress: &mut Option<Box<dyn FnMut(u64)>>,
+        summary: &mut Summary,
+        deliver: &mut dyn FnMut(Vec<Vec<Diagnostic>>, &mut Summary),
+    ) {
+        std::thread::scope(|scope| {
+            let worker = scope.spawn(|| {
+                let mut next = Vec::with_capacity(BATCH);
+                while let Some(task) = self.schedule.next(false) {
+                    if let Task::Stage(k, batch) = task {
+                        self.stage_caught(k, batch, &mut next);
+                    }
+                }
+            });
+            let mut next = Vec::with_capacity(BATCH);
+            let mut seq = 0u64;
+            let mut counter = 0u64;
+            while let Some(task) = self.schedule.next(true) {
+                match task {
+                    Task::Read if self.failed.load(Ordering::Acquire) => {
+                        // Nothing more can be written: stop reading.
+                        self.schedule.read_done(None);
+                    }
+                    Task::Read => {
+                        let mut blocks = self.spare_batch();
+                        let mut diags = Vec::new();
+                        front.next_batch(&mut blocks, BATCH, &mut diags);
+                        let end = blocks.is_empty();
+                        summary.blocks_in += blocks.len() as u64;
+                        counter += blocks.len() as u64;
+                        if counter >= 1 << 14 {
+                            counter = 0;
+                            if let Some(p) = progress.as_mut() {
+                                p(front.bytes_read());
+                            }
+                        }
+                        let batch = Batch {
+                            seq,
+                            blocks,
+                            diags,
+                            end,
+                        };
+                        self.schedule.read_done(Some(batch));
+                        seq += 1;
+                    }
+                    Task::Stage(k, batch) => self.stage_caught(k, batch, &mut next),
+                }
+                deliver(self.take_reports(), summary);
+            }
+            if worker.join().is_err() {
+                self.schedule.abort();
+            }
+        });
+        deliver(self.take_reports(), summary);
+    }
+
     /// Runs stage `k` (a pass, or after the last pass the backend) on `batch` and hands
     /// the batch on.
     fn stage(&self, k: usize, mut batch: Batch, next: &mut Vec<Block>) {
@@ -734,7 +759,7 @@ pub fn compile_str(src: &str, preset: &Preset) -> Result<String, Vec<Diagnostic>
     let mut pipeline = Pipeline::builder()
         .preset(preset.clone())
         .build()
-        .map_err(|e| vec![Diagnostic::error("pipeline::config", e)])?;
+        .map_err(|e| vec![e])?;
     let mut diags = Vec::new();
     let mut out = Vec::new();
     let summary = pipeline

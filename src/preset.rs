@@ -6,6 +6,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::back::{gcode, grbl, rrf};
+use crate::diag::Diagnostic;
 use crate::front;
 use crate::machine::Machine;
 
@@ -85,8 +86,8 @@ impl Preset {
     /// let p = ncpost::preset::Preset::from_toml("emit = \"rrf\"\n[[passes]]\nname = \"verify\"\n").unwrap();
     /// assert_eq!(p.passes[0].name, "verify");
     /// ```
-    pub fn from_toml(text: &str) -> Result<Preset, String> {
-        toml::from_str(text).map_err(|e| e.to_string())
+    pub fn from_toml(text: &str) -> Result<Preset, Diagnostic> {
+        toml::from_str(text).map_err(|e: toml::de::Error| Diagnostic::settings(e.to_string()))
     }
 
     /// A built-in preset by name.
@@ -98,20 +99,23 @@ impl Preset {
     }
 
     /// A built-in preset by name, or else a preset file at that path.
-    pub fn load(name_or_path: &str) -> Result<Preset, String> {
+    pub fn load(name_or_path: &str) -> Result<Preset, Diagnostic> {
         if let Some(p) = Preset::builtin(name_or_path) {
             return Ok(p);
         }
         let path = Path::new(name_or_path);
         if path.exists() {
-            let text = std::fs::read_to_string(path)
-                .map_err(|e| format!("cannot read preset {name_or_path}: {e}"))?;
-            return Preset::from_toml(&text).map_err(|e| format!("preset {name_or_path}: {e}"));
+            let text = std::fs::read_to_string(path).map_err(|e| {
+                Diagnostic::settings(format!("cannot read preset {name_or_path}: {e}"))
+            })?;
+            return Preset::from_toml(&text).map_err(|e| {
+                Diagnostic::settings(format!("preset {name_or_path}: {}", e.message))
+            });
         }
         let names: Vec<&str> = BUILTIN.iter().map(|(n, _)| *n).collect();
-        Err(format!(
+        Err(Diagnostic::settings(format!(
             "no preset `{name_or_path}`: not a built-in ({}) and no such file",
             names.join(", ")
-        ))
+        )))
     }
 }

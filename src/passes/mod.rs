@@ -260,17 +260,17 @@ pub fn to_toml<T: serde::Serialize>(value: &T) -> String {
 /// assert_eq!(t["rapid_feed"].as_integer(), Some(6000));
 /// assert_eq!(t["label"].as_str(), Some("x"));
 /// ```
-pub fn parse_spec(spec: &str) -> Result<(String, toml::Table), String> {
+pub fn parse_spec(spec: &str) -> Result<(String, toml::Table), Diagnostic> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let name = name.trim();
     if name.is_empty() {
-        return Err(format!("`{spec}` has no pass name"));
+        return Err(Diagnostic::settings(format!("`{spec}` has no pass name")));
     }
     let mut table = toml::Table::new();
     for pair in rest.split(',').filter(|p| !p.trim().is_empty()) {
         let (key, value) = pair
             .split_once('=')
-            .ok_or_else(|| format!("`{pair}` is not key=value"))?;
+            .ok_or_else(|| Diagnostic::settings(format!("`{pair}` is not key=value")))?;
         let key = key.trim();
         let value = value.trim();
         let parsed = toml::from_str::<toml::Table>(&format!("v = {value}"))
