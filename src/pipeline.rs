@@ -578,6 +578,10 @@ impl Relay<'_> {
         }
         if let Some(mut done) = self.schedule.stage_done(k, batch) {
             done.blocks.clear();
+            // A pass that cuts moves into many pieces (polar-ik, densify) grows a batch
+            // far beyond what the frontend reads; a kept buffer goes back to that size so
+            // that memory stays bounded by the batch size, not by the longest expansion.
+            done.blocks.shrink_to(BATCH);
             if let Ok(mut spare) = self.spare.lock()
                 && spare.len() < SPARE_BATCHES
             {
@@ -595,6 +599,8 @@ impl Relay<'_> {
             return;
         }
         run_pass(stage.pass, &mut batch.blocks, next, &mut batch.diags);
+        // The scratch buffer keeps the batch's size, as the spare buffers do.
+        next.shrink_to(BATCH);
         if batch.end {
             // What the pass still holds goes on after this batch's blocks.
             stage
