@@ -18,6 +18,7 @@ use crate::diag::Diagnostic;
 use crate::front::{Frontend, LineReader, RawLine};
 use crate::ir::Block;
 
+#[cfg(test)]
 lalrpop_util::lalrpop_mod!(
     #[allow(clippy::all, missing_docs, unused)]
     grammar,
@@ -197,38 +198,35 @@ pub fn parse_line<'a>(
     parse_tokens(toks, items).ok()
 }
 
-/// Parses the tokens of a line into its syntax tree: the items go to `items` (cleared
-/// first). Gives exactly what the LALRPOP line grammar gives; [`plain_line`] recognises the
-/// grammar's language in one pass, and the LALRPOP parser runs only on lines it rejects,
-/// for its error.
-pub(crate) fn parse_tokens<'a>(
-    toks: &[lexer::Spanned<'a>],
-    items: &mut Vec<ast::Item>,
-) -> Result<ast::Line, lalrpop_util::ParseError<usize, lexer::Tok<'a>, ()>> {
-    if let Some(line) = plain_line(toks, items) {
-        return Ok(line);
-    }
-    items.clear();
-    grammar::LineParser::new().parse(items, toks.iter().copied().map(Ok))
-}
-
-/// The grammar of `grammar/gcode.lalrpop`, `"/"? Item* Checksum? Tail?`, written out as
-/// one scan of the tokens: the same [`ast::Line`] and items as the LALRPOP parser for
-/// every token list it accepts, `None` for every list the grammar rejects (then `items`
-/// holds a prefix and must be cleared). Most lines of a file are plain blocks, and this is
-/// several times cheaper than the table-driven parser.
+/// Reads the block structure of a line from its tokens:
+///
+/// ```text
+/// line := ["/" [n]] item* [checksum] [tail comment]
+/// item := word | letter | (comment) | "string" | %
+/// ```
+///
+/// The items go to `items` (cleared first, and reused from line to line by the caller).
+/// On a token the grammar does not allow where it stands, that token is the error (the
+/// caller reports "unexpected ..." at it); `items` then holds the items before it.
+///
+/// The grammar is regular, one optional part after another, so it is read in one scan
+/// of the tokens rather than by a generated parser (LALRPOP would add a table-driven
+/// automaton and nothing else: there is no nesting to parse).
 ///
 /// ```
-/// use ncpost::front::gcode::{lexer::lex_line, plain_line};
+/// use ncpost::front::gcode::{lexer::{lex_line, Tok}, parse_tokens};
 /// let (mut toks, mut items) = (Vec::new(), Vec::new());
 /// lex_line("/ G1 X2 *71 ; cut", &mut toks);
-/// let line = plain_line(&toks, &mut items).unwrap();
+/// let line = parse_tokens(&toks, &mut items).unwrap();
 /// assert!(line.block_delete);
 /// assert_eq!((items.len(), line.checksum, line.tail), (2, Some((8, 11)), Some((12, 17))));
 /// lex_line("G1 *71 X2", &mut toks);
-/// assert!(plain_line(&toks, &mut items).is_none());
+/// assert_eq!(parse_tokens(&toks, &mut items), Err((7, Tok::Word("X2"), 9)));
 /// ```
-pub fn plain_line(toks: &[lexer::Spanned<'_>], items: &mut Vec<ast::Item>) -> Option<ast::Line> {
+pub fn parse_tokens<'a>(
+    toks: &[lexer::Spanned<'a>],
+    items: &mut Vec<ast::Item>,
+) -> Result<ast::Line, lexer::Spanned<'a>> {
     use ast::Item;
     use lexer::Tok;
     items.clear();
@@ -258,11 +256,14 @@ pub fn plain_line(toks: &[lexer::Spanned<'_>], items: &mut Vec<ast::Item>) -> Op
         tail = Some((l, r));
         rest = &rest[1..];
     }
-    rest.is_empty().then_some(ast::Line {
-        block_delete,
-        checksum,
-        tail,
-    })
+    match rest.first() {
+        Some(&unexpected) => Err(unexpected),
+        None => Ok(ast::Line {
+            block_delete,
+            checksum,
+            tail,
+        }),
+    }
 }
 
 /// A whole program parsed from a string.
@@ -311,17 +312,21 @@ mod tests {
     use proptest::prelude::*;
 
     /// The grammar's answer: the line and its items, or `None` on a syntax error.
-    fn by_grammar(toks: &[Spanned<'_>]) -> Option<(ast::Line, Vec<ast::Item>)> {
+    fn by_grammar<'a>(toks: &[Spanned<'a>]) -> Result<(ast::Line, Vec<ast::Item>), Spanned<'a>> {
+        use lalrpop_util::ParseError as P;
         let mut items = Vec::new();
         grammar::LineParser::new()
             .parse(&mut items, toks.iter().copied().map(Ok::<_, ()>))
-            .ok()
             .map(|l| (l, items))
+            .map_err(|e| match e {
+                P::UnrecognizedToken { token, .. } | P::ExtraToken { token } => token,
+                e => panic!("{e:?}"),
+            })
     }
 
-    fn by_fast_path(toks: &[Spanned<'_>]) -> Option<(ast::Line, Vec<ast::Item>)> {
+    fn by_fast_path<'a>(toks: &[Spanned<'a>]) -> Result<(ast::Line, Vec<ast::Item>), Spanned<'a>> {
         let mut items = vec![ast::Item::Percent(99)]; // must be cleared
-        plain_line(toks, &mut items).map(|l| (l, items))
+        parse_tokens(toks, &mut items).map(|l| (l, items))
     }
 
     fn token() -> impl Strategy<Value = Tok<'static>> {
@@ -383,7 +388,7 @@ mod tests {
                 assert_eq!(toks, lexer::tokens(line).collect::<Vec<_>>(), "{line:?}");
                 let fast = by_fast_path(&toks);
                 assert_eq!(fast, by_grammar(&toks), "{}: {line:?}", path.display());
-                if fast.is_some() {
+                if fast.is_ok() {
                     accepted += 1;
                 } else {
                     rejected += 1;
