@@ -176,8 +176,14 @@ mod tests {
                 Tok::Word("g 38.2")
             ]
         );
-        assert_eq!(toks("G28 X Y"), vec![Tok::Word("G28"), Tok::Letter("X"), Tok::Letter("Y")]);
-        assert_eq!(toks("/G1 *12"), vec![Tok::Slash("/"), Tok::Word("G1"), Tok::Checksum("*12")]);
+        assert_eq!(
+            toks("G28 X Y"),
+            vec![Tok::Word("G28"), Tok::Letter("X"), Tok::Letter("Y")]
+        );
+        assert_eq!(
+            toks("/G1 *12"),
+            vec![Tok::Slash("/"), Tok::Word("G1"), Tok::Checksum("*12")]
+        );
     }
 
     #[test]

@@ -4,6 +4,12 @@
 //! (parameters, expressions, control flow, RepRapFirmware meta commands, subprogram
 //! bodies) travel as [`Verbatim`](crate::ir::Verbatim) text with a warning, and the
 //! positions they may change become unknown.
+//!
+//! A line is split into tokens by the logos lexer ([`lexer`]) and its block structure
+//! (block delete, items, checksum, end-of-line comment) read by [`parse_tokens`]. That
+//! grammar is regular, one optional part after another with nothing nested, so it is read
+//! in one scan of the tokens: a LALRPOP parser, as the CL frontend uses for its
+//! statements, would add a generated automaton and nothing else.
 
 pub mod ast;
 pub use crate::num::lexer;
@@ -17,13 +23,6 @@ use serde::{Deserialize, Serialize};
 use crate::diag::Diagnostic;
 use crate::front::{Frontend, LineReader, RawLine};
 use crate::ir::Block;
-
-#[cfg(test)]
-lalrpop_util::lalrpop_mod!(
-    #[allow(clippy::all, missing_docs, unused)]
-    grammar,
-    "/gcode.rs"
-);
 
 /// Frontend options.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -304,133 +303,80 @@ pub fn parse_str(src: &str, options: &Options) -> Result<Program, Vec<Diagnostic
 
 #[cfg(test)]
 mod tests {
-    //! The one-pass recogniser [`plain_line`] against the LALRPOP grammar it replaces on
-    //! the hot path: same tree and items, or both reject, for random token lists and for
-    //! every line of the shared G-code corpus.
-    use super::lexer::{Spanned, Tok, lex_line};
+    use super::lexer::{Tok, lex_line};
     use super::*;
-    use proptest::prelude::*;
 
-    /// The grammar's answer: the line and its items, or `None` on a syntax error.
-    fn by_grammar<'a>(toks: &[Spanned<'a>]) -> Result<(ast::Line, Vec<ast::Item>), Spanned<'a>> {
-        use lalrpop_util::ParseError as P;
-        let mut items = Vec::new();
-        grammar::LineParser::new()
-            .parse(&mut items, toks.iter().copied().map(Ok::<_, ()>))
-            .map(|l| (l, items))
-            .map_err(|e| match e {
-                P::UnrecognizedToken { token, .. } | P::ExtraToken { token } => token,
-                e => panic!("{e:?}"),
-            })
-    }
-
-    fn by_fast_path<'a>(toks: &[Spanned<'a>]) -> Result<(ast::Line, Vec<ast::Item>), Spanned<'a>> {
-        let mut items = vec![ast::Item::Percent(99)]; // must be cleared
-        parse_tokens(toks, &mut items).map(|l| (l, items))
-    }
-
-    fn token() -> impl Strategy<Value = Tok<'static>> {
-        prop_oneof![
-            4 => Just(Tok::Word("X1")),
-            1 => Just(Tok::Letter("X")),
-            1 => Just(Tok::Comment("(c)")),
-            1 => Just(Tok::OpenComment("(c")),
-            1 => Just(Tok::LineComment("; c")),
-            1 => Just(Tok::Str("\"s\"")),
-            1 => Just(Tok::Checksum("*12")),
-            1 => Just(Tok::Slash("/")),
-            1 => Just(Tok::Percent),
-            1 => Just(Tok::Other("#")),
-            1 => Just(Tok::Ident("if")),
-            1 => Just(Tok::Number("12")),
-        ]
-    }
-
-    proptest! {
-        #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
-
-        /// Any token list (with increasing, gap-separated spans): same result both ways.
-        #[test]
-        fn fast_path_equals_grammar(
-            parts in proptest::collection::vec((token(), 1usize..4, 0usize..3), 0..12)
-        ) {
-            let mut toks = Vec::new();
-            let mut at = 0;
-            for (tok, len, gap) in parts {
-                toks.push((at + gap, tok, at + gap + len));
-                at += gap + len;
-            }
-            prop_assert_eq!(by_fast_path(&toks), by_grammar(&toks));
-        }
-    }
-
-    /// Every line of every corpus G-code file: same result both ways; most lines are
-    /// accepted (the check is not vacuous). Also the hand lexer against logos.
-    #[test]
-    fn fast_path_equals_grammar_on_the_corpus() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gcode");
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            eprintln!("skipped: no corpus at {}", dir.display());
-            return;
-        };
-        let (mut lines, mut accepted, mut rejected) = (0usize, 0usize, 0usize);
-        for entry in entries {
-            let path = entry.expect("corpus entry").path();
-            let Ok(bytes) = std::fs::read(&path) else {
-                continue;
-            };
-            let text = String::from_utf8_lossy(&bytes);
-            let mut toks = Vec::new();
-            for line in text.lines() {
-                lines += 1;
-                lex_line(line, &mut toks);
-                // The hand lexer (inside lex_line) gives the logos lexer's tokens.
-                assert_eq!(toks, lexer::tokens(line).collect::<Vec<_>>(), "{line:?}");
-                let fast = by_fast_path(&toks);
-                assert_eq!(fast, by_grammar(&toks), "{}: {line:?}", path.display());
-                if fast.is_ok() {
-                    accepted += 1;
-                } else {
-                    rejected += 1;
-                }
-            }
-        }
-        assert!(lines > 10_000, "corpus has only {lines} lines");
-        assert!(accepted > lines * 9 / 10, "{accepted} of {lines} accepted");
-        assert!(rejected > 0, "no line exercised the rejecting branch");
-    }
-
-    /// Hand-picked lines around each optional part of the grammar.
-    #[test]
-    fn fast_path_edge_cases() {
+    /// The line grammar's answer for `line`: the line and its items, or the token where
+    /// the line leaves the grammar.
+    fn read(line: &str) -> Result<(ast::Line, Vec<ast::Item>), (usize, Tok<'_>, usize)> {
         let mut toks = Vec::new();
-        for line in [
-            "",
-            "/",
-            "/2 G1",
-            "G1 / X2",
-            "*12",
-            "*12 *13",
-            "G1 *12 ; c",
-            "G1 ; c *12",
-            "G1 (a) *12 (b",
-            "%",
-            "% G1 X Y (c) \"s\" *1",
-            "G1 X1 ( open",
-            "; only",
-            "#1=2",
-            "G1 X[1+2]",
-        ] {
-            lex_line(line, &mut toks);
-            assert_eq!(by_fast_path(&toks), by_grammar(&toks), "{line:?}");
-        }
-        lex_line("/ G1 X2 *71 ; cut", &mut toks);
-        let (l, items) = by_fast_path(&toks).expect("plain line");
+        lex_line(line, &mut toks);
+        let mut items = vec![ast::Item::Percent(99)]; // must be cleared
+        parse_tokens(&toks, &mut items).map(|l| (l, items))
+    }
+
+    #[test]
+    fn each_optional_part_in_its_place() {
+        use ast::Item;
+        let line = |block_delete, checksum, tail| ast::Line {
+            block_delete,
+            checksum,
+            tail,
+        };
+        assert_eq!(read(""), Ok((line(false, None, None), vec![])));
+        assert_eq!(read("/"), Ok((line(true, None, None), vec![])));
         assert_eq!(
-            items,
-            vec![ast::Item::Word(2, 4), ast::Item::Word(5, 7)],
-            "items"
+            read("/2 G1"),
+            Ok((line(true, None, None), vec![Item::Word(3, 5)]))
         );
-        assert_eq!((l.checksum, l.tail), (Some((8, 11)), Some((12, 17))));
+        assert_eq!(read("*12"), Ok((line(false, Some((0, 3)), None), vec![])));
+        assert_eq!(
+            read("G1 *12 ; c"),
+            Ok((
+                line(false, Some((3, 6)), Some((7, 10))),
+                vec![Item::Word(0, 2)]
+            ))
+        );
+        assert_eq!(
+            read("% G1 X (c) \"s\" *1"),
+            Ok((
+                line(false, Some((15, 17)), None),
+                vec![
+                    Item::Percent(0),
+                    Item::Word(2, 4),
+                    Item::Letter(5, 6),
+                    Item::Comment(7, 10),
+                    Item::Str(11, 14)
+                ]
+            ))
+        );
+        assert_eq!(
+            read("G1 X1 ( open"),
+            Ok((
+                line(false, None, Some((6, 12))),
+                vec![Item::Word(0, 2), Item::Word(3, 5)]
+            ))
+        );
+        assert_eq!(
+            read("; only"),
+            Ok((line(false, None, Some((0, 6))), vec![]))
+        );
+    }
+
+    #[test]
+    fn the_first_token_out_of_place_is_the_error() {
+        assert_eq!(read("G1 / X2").map(|_| ()), Err((3, Tok::Slash("/"), 4)));
+        assert_eq!(
+            read("*12 *13").map(|_| ()),
+            Err((4, Tok::Checksum("*13"), 7))
+        );
+        assert_eq!(read("G1 ; c *12").map(|_| ()).ok(), Some(()));
+        assert_eq!(read("G1 (a) *12 (b").map(|_| ()).ok(), Some(()));
+        assert_eq!(
+            read("G1 *12 (b)").map(|_| ()),
+            Err((7, Tok::Comment("(b)"), 10))
+        );
+        assert_eq!(read("#1=2").map(|_| ()), Err((0, Tok::Other("#"), 1)));
+        assert_eq!(read("G1 X[1+2]").map(|_| ()), Err((4, Tok::Other("["), 5)));
     }
 }

@@ -118,10 +118,15 @@ impl Lowerer {
         if let Some(p) = slots.get('P') {
             if p.value < 1.0 || p.value.fract() != 0.0 {
                 diags.push(
-                    Diagnostic::error("gcode::arc-turns", format!("`{}`: P must be a whole number of turns, 1 or more", p.text))
-                        .at_bytes(line_no, text, p.start, p.end)
-                        .with_label("not a whole number of turns")
-                        .with_help("P counts full turns of the arc: P1 is a plain arc, P2 adds one more turn"),
+                    Diagnostic::error(
+                        "gcode::arc-turns",
+                        format!("`{}`: P must be a whole number of turns, 1 or more", p.text),
+                    )
+                    .at_bytes(line_no, text, p.start, p.end)
+                    .with_label("not a whole number of turns")
+                    .with_help(
+                        "P counts full turns of the arc: P1 is a plain arc, P2 adds one more turn",
+                    ),
                 );
                 return None;
             }
@@ -162,7 +167,9 @@ impl Lowerer {
                 };
                 self.check_centre(&chord, c, diags)?
             }
-            (false, Some(rw)) => self.centre_from_radius(&chord, clockwise, rw.value * unit, diags)?,
+            (false, Some(rw)) => {
+                self.centre_from_radius(&chord, clockwise, rw.value * unit, diags)?
+            }
         };
         let mut center = Vector3::zeros();
         center[u.index()] = centre2[0];

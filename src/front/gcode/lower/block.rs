@@ -381,8 +381,12 @@ impl Lowerer {
         match self.dwell_seconds(&p.slots) {
             Some(seconds) => Block::new(p.span, BlockKind::Dwell { seconds }),
             None => {
-                let mut words: Small<Word<'_>> =
-                    p.words.iter().filter(|w| w.letter != 'N').copied().collect();
+                let mut words: Small<Word<'_>> = p
+                    .words
+                    .iter()
+                    .filter(|w| w.letter != 'N')
+                    .copied()
+                    .collect();
                 words.sort_by_key(|w| w.start);
                 self.command_of(p, &words, AxisSet::EMPTY, false)
             }
@@ -432,7 +436,9 @@ impl Lowerer {
                     )
                     .at_bytes(line_no, text, 0, text.len())
                     .with_label("passes through unchanged")
-                    .with_help("the block is copied as written; positions after it are treated as unknown"),
+                    .with_help(
+                        "the block is copied as written; positions after it are treated as unknown",
+                    ),
                 );
                 out.push(self.verbatim(
                     text,
@@ -529,8 +535,7 @@ fn sort_words<'a>(
                 if *slot == Slots::NONE {
                     *slot = wi as u32;
                 }
-                if Axis::from_letter(l).is_none()
-                    && !matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'P')
+                if Axis::from_letter(l).is_none() && !matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'P')
                 {
                     sorted.rest.push(*w);
                 }

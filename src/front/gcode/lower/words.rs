@@ -155,7 +155,11 @@ pub(super) fn collect<'a>(
 }
 
 /// A RepRapFirmware/Marlin checksum `*NN`: the XOR of the bytes before it.
-fn check_checksum(text: &str, line_no: u32, (at, cs_end): (usize, usize)) -> Result<(), Diagnostic> {
+fn check_checksum(
+    text: &str,
+    line_no: u32,
+    (at, cs_end): (usize, usize),
+) -> Result<(), Diagnostic> {
     let cs = &text[at..cs_end];
     let expected: u32 = text.as_bytes()[..at]
         .iter()
@@ -304,7 +308,11 @@ pub(super) fn letter_error(line_no: u32, text: &str, s: usize, l: &str) -> Diagn
 }
 
 /// A token where the line grammar does not allow it.
-pub(super) fn syntax_error(line_no: u32, text: &str, (s, t, e): (usize, Tok<'_>, usize)) -> Diagnostic {
+pub(super) fn syntax_error(
+    line_no: u32,
+    text: &str,
+    (s, t, e): (usize, Tok<'_>, usize),
+) -> Diagnostic {
     Diagnostic::error("gcode::syntax", format!("unexpected {}", describe(t)))
         .at_bytes(line_no, text, s, e)
         .with_label("not allowed here")
