@@ -4,7 +4,7 @@
 //! `../shared/corpus/gcode/` next to the repository):
 //!
 //! - `lex`: [`lex_line`] over every line (logos tokens into one reused `Vec`);
-//! - `parse`: [`parse_line`] over every line (lex + the LALRPOP line grammar);
+//! - `parse`: [`parse_line`] over every line (lex + the line grammar);
 //! - `lower`: the whole frontend, [`Parser`] producing IR blocks (line reader, lex,
 //!   grammar and lowering with modal state);
 //! - `emit`: the plain G-code [`Writer`] over blocks parsed once before timing, into a

@@ -165,6 +165,26 @@ impl<R: BufRead> LineReader<R> {
             self.offset += taken as u64;
             return Ok(Some((Some(bytes), span)));
         }
+        let start = self.offset;
+        let Some((content, too_long)) = self.copy_line()? else {
+            return Ok(None);
+        };
+        self.line += 1;
+        let span = Span {
+            offset: start,
+            len: content.min(u32::MAX as usize) as u32,
+            line: self.line,
+        };
+        if too_long {
+            return Ok(Some((None, span)));
+        }
+        Ok(Some((Some(&self.buf[..content]), span)))
+    }
+
+    /// Reads a line that does not lie whole in the reader's buffer into `buf`, up to the
+    /// limit: its content length (without the terminator) and whether it is over the
+    /// limit; `None` at the end of input.
+    fn copy_line(&mut self) -> io::Result<Option<(usize, bool)>> {
         self.buf.clear();
         let start = self.offset;
         let mut too_long = false;
@@ -212,7 +232,6 @@ impl<R: BufRead> LineReader<R> {
         if !consumed_any {
             return Ok(None);
         }
-        self.line += 1;
         let total = (self.offset - start) as usize;
         let terminator = match (newline, before_newline) {
             (true, b'\r') => 2,
@@ -220,22 +239,7 @@ impl<R: BufRead> LineReader<R> {
             (false, _) => 0,
         };
         let content = total - terminator.min(total);
-        if too_long || content > self.max_len {
-            let span = Span {
-                offset: start,
-                len: content.min(u32::MAX as usize) as u32,
-                line: self.line,
-            };
-            return Ok(Some((None, span)));
-        }
-        let end = content;
-        let bytes = &self.buf[..end];
-        let span = Span {
-            offset: start,
-            len: end as u32,
-            line: self.line,
-        };
-        Ok(Some((Some(bytes), span)))
+        Ok(Some((content, too_long || content > self.max_len)))
     }
 }
 

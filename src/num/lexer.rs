@@ -60,87 +60,8 @@ pub type Spanned<'a> = (usize, Tok<'a>, usize);
 /// assert_eq!(toks[2].1, Tok::Comment("(move)"));
 /// ```
 pub fn lex_line<'a>(line: &'a str, out: &mut Vec<Spanned<'a>>) {
-    if !lex_plain(line, out) {
-        out.clear();
-        out.extend(tokens(line));
-    }
-}
-
-/// Lexes the common line shapes by hand: words with numbers (`G1`, `X-1.5`, `G 38.2`),
-/// blanks, parenthesised and `;` comments. Fills `out` (cleared first) with exactly the
-/// tokens [`tokens`] gives and returns `true`; returns `false`, with `out` holding a
-/// prefix, at the first thing it does not handle (a letter without a number, a keyword,
-/// `*`, `/`, `%`, a quote, expression syntax, a non-ASCII byte), which the logos lexer
-/// then takes. The DFA of the logos lexer costs several times more per byte.
-///
-/// ```
-/// use ncpost::num::lexer::{lex_plain, tokens, Tok};
-/// let mut toks = Vec::new();
-/// assert!(lex_plain("G1 X-1.5 Y.5 E2. ; move", &mut toks));
-/// assert_eq!(toks, tokens("G1 X-1.5 Y.5 E2. ; move").collect::<Vec<_>>());
-/// assert_eq!(toks[1], (3, Tok::Word("X-1.5"), 8));
-/// assert!(!lex_plain("G28 X Y", &mut toks));
-/// ```
-pub fn lex_plain<'a>(line: &'a str, out: &mut Vec<Spanned<'a>>) -> bool {
     out.clear();
-    let b = line.as_bytes();
-    let blank = |c: u8| matches!(c, b' ' | b'\t' | b'\r' | 0x0b | 0x0c);
-    let digits = |mut i: usize| {
-        while i < b.len() && b[i].is_ascii_digit() {
-            i += 1;
-        }
-        i
-    };
-    let mut i = 0;
-    while i < b.len() {
-        let c = b[i];
-        if blank(c) {
-            i += 1;
-        } else if c.is_ascii_alphabetic() {
-            // `[A-Za-z][ \t]*[+-]?([0-9]+\.?[0-9]*|\.[0-9]+)`, the longest match.
-            let start = i;
-            let mut j = i + 1;
-            while j < b.len() && matches!(b[j], b' ' | b'\t') {
-                j += 1;
-            }
-            if j < b.len() && matches!(b[j], b'+' | b'-') {
-                j += 1;
-            }
-            let int_end = digits(j);
-            let end = if int_end > j {
-                if int_end < b.len() && b[int_end] == b'.' {
-                    digits(int_end + 1)
-                } else {
-                    int_end
-                }
-            } else if j < b.len() && b[j] == b'.' && digits(j + 1) > j + 1 {
-                digits(j + 1)
-            } else {
-                // A letter alone, a keyword, or a sign or point without digits.
-                return false;
-            };
-            out.push((start, Tok::Word(&line[start..end]), end));
-            i = end;
-        } else if c == b';' {
-            out.push((i, Tok::LineComment(&line[i..]), b.len()));
-            return true;
-        } else if c == b'(' {
-            match closing_paren(&line[i + 1..]) {
-                Some(len) => {
-                    let end = i + 1 + len;
-                    out.push((i, Tok::Comment(&line[i..end]), end));
-                    i = end;
-                }
-                None => {
-                    out.push((i, Tok::OpenComment(&line[i..]), b.len()));
-                    return true;
-                }
-            }
-        } else {
-            return false;
-        }
-    }
-    true
+    out.extend(tokens(line));
 }
 
 /// The tokens of `line`, lazily (no allocation).
@@ -242,61 +163,27 @@ mod tests {
         );
     }
 
-    /// The hand lexer against logos: the same tokens whenever it accepts a line.
-    fn check_plain(line: &str) -> bool {
-        let mut fast = Vec::new();
-        let accepted = lex_plain(line, &mut fast);
-        if accepted {
-            assert_eq!(fast, tokens(line).collect::<Vec<_>>(), "{line:?}");
-        }
-        accepted
-    }
-
     #[test]
-    fn plain_lexer_cases() {
-        for line in [
-            "",
-            "   ",
-            "G1 X1 Y2",
-            "G1X-1.5Y+.5E2.F1800",
-            "g 38.2 z-10",
-            "G1 X1 ; c (x) ;",
-            "G1 (a (b) c) X2",
-            "G1 ( open",
-            "N10 G1 X1\r",
-            "X1.2.3",
-            "X.",
-            "X-",
-            "X-.5",
-            "G1abc",
-            "\tG1\x0bX1\x0c",
-        ] {
-            check_plain(line);
-        }
-        for rejected in [
-            "G28 X Y", "X.", "X-", "X1.2.3", "if x", "G1 *12", "/G1", "%", "é1",
-        ] {
-            assert!(!check_plain(rejected), "{rejected:?} should go to logos");
-        }
-        assert!(check_plain("G1 X1 (c) ; d"));
-    }
-
-    proptest::proptest! {
-        #![proptest_config(proptest::prelude::ProptestConfig {
-            cases: 4000, ..proptest::prelude::ProptestConfig::default()
-        })]
-        /// Random lines over the characters that matter: same tokens as logos.
-        #[test]
-        fn plain_lexer_matches_logos(line in "[GXYgEe0-9 .+\\-;()\t\r*/%#a]{0,24}") {
-            check_plain(&line);
-        }
-        /// Lines shaped like slicer output, which it must accept.
-        #[test]
-        fn plain_lexer_accepts_moves(
-            line in "( ?[GXYZEFgxyzef] ?[+-]?([0-9]{1,4}(\\.[0-9]{0,4})?|\\.[0-9]{1,4})){1,6}( ?;[ -~]{0,10})?"
-        ) {
-            proptest::prop_assert!(check_plain(&line), "{:?}", line);
-        }
+    fn word_shapes() {
+        assert_eq!(
+            toks("G1X-1.5Y+.5E2.F1800 g 38.2"),
+            vec![
+                Tok::Word("G1"),
+                Tok::Word("X-1.5"),
+                Tok::Word("Y+.5"),
+                Tok::Word("E2."),
+                Tok::Word("F1800"),
+                Tok::Word("g 38.2")
+            ]
+        );
+        assert_eq!(
+            toks("G28 X Y"),
+            vec![Tok::Word("G28"), Tok::Letter("X"), Tok::Letter("Y")]
+        );
+        assert_eq!(
+            toks("/G1 *12"),
+            vec![Tok::Slash("/"), Tok::Word("G1"), Tok::Checksum("*12")]
+        );
     }
 
     #[test]

@@ -1,4 +1,4 @@
-//! Syntax of one plain G-code line, as the LALRPOP grammar builds it. Items are byte
+//! Syntax of one plain G-code line, as [`parse_tokens`](super::parse_tokens) reads it. Items are byte
 //! ranges of the line, so the buffers holding them are reused from line to line.
 
 /// One element of a block: its byte range `start..end` in the line.

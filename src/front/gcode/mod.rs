@@ -4,6 +4,12 @@
 //! (parameters, expressions, control flow, RepRapFirmware meta commands, subprogram
 //! bodies) travel as [`Verbatim`](crate::ir::Verbatim) text with a warning, and the
 //! positions they may change become unknown.
+//!
+//! A line is split into tokens by the logos lexer ([`lexer`]) and its block structure
+//! (block delete, items, checksum, end-of-line comment) read by [`parse_tokens`]. That
+//! grammar is regular, one optional part after another with nothing nested, so it is read
+//! in one scan of the tokens: a LALRPOP parser, as the CL frontend uses for its
+//! statements, would add a generated automaton and nothing else.
 
 pub mod ast;
 pub use crate::num::lexer;
@@ -17,12 +23,6 @@ use serde::{Deserialize, Serialize};
 use crate::diag::Diagnostic;
 use crate::front::{Frontend, LineReader, RawLine};
 use crate::ir::Block;
-
-lalrpop_util::lalrpop_mod!(
-    #[allow(clippy::all, missing_docs, unused)]
-    grammar,
-    "/gcode.rs"
-);
 
 /// Frontend options.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -197,38 +197,35 @@ pub fn parse_line<'a>(
     parse_tokens(toks, items).ok()
 }
 
-/// Parses the tokens of a line into its syntax tree: the items go to `items` (cleared
-/// first). Gives exactly what the LALRPOP line grammar gives; [`plain_line`] recognises the
-/// grammar's language in one pass, and the LALRPOP parser runs only on lines it rejects,
-/// for its error.
-pub(crate) fn parse_tokens<'a>(
-    toks: &[lexer::Spanned<'a>],
-    items: &mut Vec<ast::Item>,
-) -> Result<ast::Line, lalrpop_util::ParseError<usize, lexer::Tok<'a>, ()>> {
-    if let Some(line) = plain_line(toks, items) {
-        return Ok(line);
-    }
-    items.clear();
-    grammar::LineParser::new().parse(items, toks.iter().copied().map(Ok))
-}
-
-/// The grammar of `grammar/gcode.lalrpop`, `"/"? Item* Checksum? Tail?`, written out as
-/// one scan of the tokens: the same [`ast::Line`] and items as the LALRPOP parser for
-/// every token list it accepts, `None` for every list the grammar rejects (then `items`
-/// holds a prefix and must be cleared). Most lines of a file are plain blocks, and this is
-/// several times cheaper than the table-driven parser.
+/// Reads the block structure of a line from its tokens:
+///
+/// ```text
+/// line := ["/" [n]] item* [checksum] [tail comment]
+/// item := word | letter | (comment) | "string" | %
+/// ```
+///
+/// The items go to `items` (cleared first, and reused from line to line by the caller).
+/// On a token the grammar does not allow where it stands, that token is the error (the
+/// caller reports "unexpected ..." at it); `items` then holds the items before it.
+///
+/// The grammar is regular, one optional part after another, so it is read in one scan
+/// of the tokens rather than by a generated parser (LALRPOP would add a table-driven
+/// automaton and nothing else: there is no nesting to parse).
 ///
 /// ```
-/// use ncpost::front::gcode::{lexer::lex_line, plain_line};
+/// use ncpost::front::gcode::{lexer::{lex_line, Tok}, parse_tokens};
 /// let (mut toks, mut items) = (Vec::new(), Vec::new());
 /// lex_line("/ G1 X2 *71 ; cut", &mut toks);
-/// let line = plain_line(&toks, &mut items).unwrap();
+/// let line = parse_tokens(&toks, &mut items).unwrap();
 /// assert!(line.block_delete);
 /// assert_eq!((items.len(), line.checksum, line.tail), (2, Some((8, 11)), Some((12, 17))));
 /// lex_line("G1 *71 X2", &mut toks);
-/// assert!(plain_line(&toks, &mut items).is_none());
+/// assert_eq!(parse_tokens(&toks, &mut items), Err((7, Tok::Word("X2"), 9)));
 /// ```
-pub fn plain_line(toks: &[lexer::Spanned<'_>], items: &mut Vec<ast::Item>) -> Option<ast::Line> {
+pub fn parse_tokens<'a>(
+    toks: &[lexer::Spanned<'a>],
+    items: &mut Vec<ast::Item>,
+) -> Result<ast::Line, lexer::Spanned<'a>> {
     use ast::Item;
     use lexer::Tok;
     items.clear();
@@ -258,11 +255,14 @@ pub fn plain_line(toks: &[lexer::Spanned<'_>], items: &mut Vec<ast::Item>) -> Op
         tail = Some((l, r));
         rest = &rest[1..];
     }
-    rest.is_empty().then_some(ast::Line {
-        block_delete,
-        checksum,
-        tail,
-    })
+    match rest.first() {
+        Some(&unexpected) => Err(unexpected),
+        None => Ok(ast::Line {
+            block_delete,
+            checksum,
+            tail,
+        }),
+    }
 }
 
 /// A whole program parsed from a string.
@@ -303,129 +303,80 @@ pub fn parse_str(src: &str, options: &Options) -> Result<Program, Vec<Diagnostic
 
 #[cfg(test)]
 mod tests {
-    //! The one-pass recogniser [`plain_line`] against the LALRPOP grammar it replaces on
-    //! the hot path: same tree and items, or both reject, for random token lists and for
-    //! every line of the shared G-code corpus.
-    use super::lexer::{Spanned, Tok, lex_line};
+    use super::lexer::{Tok, lex_line};
     use super::*;
-    use proptest::prelude::*;
 
-    /// The grammar's answer: the line and its items, or `None` on a syntax error.
-    fn by_grammar(toks: &[Spanned<'_>]) -> Option<(ast::Line, Vec<ast::Item>)> {
-        let mut items = Vec::new();
-        grammar::LineParser::new()
-            .parse(&mut items, toks.iter().copied().map(Ok::<_, ()>))
-            .ok()
-            .map(|l| (l, items))
-    }
-
-    fn by_fast_path(toks: &[Spanned<'_>]) -> Option<(ast::Line, Vec<ast::Item>)> {
-        let mut items = vec![ast::Item::Percent(99)]; // must be cleared
-        plain_line(toks, &mut items).map(|l| (l, items))
-    }
-
-    fn token() -> impl Strategy<Value = Tok<'static>> {
-        prop_oneof![
-            4 => Just(Tok::Word("X1")),
-            1 => Just(Tok::Letter("X")),
-            1 => Just(Tok::Comment("(c)")),
-            1 => Just(Tok::OpenComment("(c")),
-            1 => Just(Tok::LineComment("; c")),
-            1 => Just(Tok::Str("\"s\"")),
-            1 => Just(Tok::Checksum("*12")),
-            1 => Just(Tok::Slash("/")),
-            1 => Just(Tok::Percent),
-            1 => Just(Tok::Other("#")),
-            1 => Just(Tok::Ident("if")),
-            1 => Just(Tok::Number("12")),
-        ]
-    }
-
-    proptest! {
-        #![proptest_config(ProptestConfig { cases: 2000, ..ProptestConfig::default() })]
-
-        /// Any token list (with increasing, gap-separated spans): same result both ways.
-        #[test]
-        fn fast_path_equals_grammar(
-            parts in proptest::collection::vec((token(), 1usize..4, 0usize..3), 0..12)
-        ) {
-            let mut toks = Vec::new();
-            let mut at = 0;
-            for (tok, len, gap) in parts {
-                toks.push((at + gap, tok, at + gap + len));
-                at += gap + len;
-            }
-            prop_assert_eq!(by_fast_path(&toks), by_grammar(&toks));
-        }
-    }
-
-    /// Every line of every corpus G-code file: same result both ways; most lines are
-    /// accepted (the check is not vacuous). Also the hand lexer against logos.
-    #[test]
-    fn fast_path_equals_grammar_on_the_corpus() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gcode");
-        let Ok(entries) = std::fs::read_dir(&dir) else {
-            eprintln!("skipped: no corpus at {}", dir.display());
-            return;
-        };
-        let (mut lines, mut accepted, mut rejected) = (0usize, 0usize, 0usize);
-        for entry in entries {
-            let path = entry.expect("corpus entry").path();
-            let Ok(bytes) = std::fs::read(&path) else {
-                continue;
-            };
-            let text = String::from_utf8_lossy(&bytes);
-            let mut toks = Vec::new();
-            for line in text.lines() {
-                lines += 1;
-                lex_line(line, &mut toks);
-                // The hand lexer (inside lex_line) gives the logos lexer's tokens.
-                assert_eq!(toks, lexer::tokens(line).collect::<Vec<_>>(), "{line:?}");
-                let fast = by_fast_path(&toks);
-                assert_eq!(fast, by_grammar(&toks), "{}: {line:?}", path.display());
-                if fast.is_some() {
-                    accepted += 1;
-                } else {
-                    rejected += 1;
-                }
-            }
-        }
-        assert!(lines > 10_000, "corpus has only {lines} lines");
-        assert!(accepted > lines * 9 / 10, "{accepted} of {lines} accepted");
-        assert!(rejected > 0, "no line exercised the rejecting branch");
-    }
-
-    /// Hand-picked lines around each optional part of the grammar.
-    #[test]
-    fn fast_path_edge_cases() {
+    /// The line grammar's answer for `line`: the line and its items, or the token where
+    /// the line leaves the grammar.
+    fn read(line: &str) -> Result<(ast::Line, Vec<ast::Item>), (usize, Tok<'_>, usize)> {
         let mut toks = Vec::new();
-        for line in [
-            "",
-            "/",
-            "/2 G1",
-            "G1 / X2",
-            "*12",
-            "*12 *13",
-            "G1 *12 ; c",
-            "G1 ; c *12",
-            "G1 (a) *12 (b",
-            "%",
-            "% G1 X Y (c) \"s\" *1",
-            "G1 X1 ( open",
-            "; only",
-            "#1=2",
-            "G1 X[1+2]",
-        ] {
-            lex_line(line, &mut toks);
-            assert_eq!(by_fast_path(&toks), by_grammar(&toks), "{line:?}");
-        }
-        lex_line("/ G1 X2 *71 ; cut", &mut toks);
-        let (l, items) = by_fast_path(&toks).expect("plain line");
+        lex_line(line, &mut toks);
+        let mut items = vec![ast::Item::Percent(99)]; // must be cleared
+        parse_tokens(&toks, &mut items).map(|l| (l, items))
+    }
+
+    #[test]
+    fn each_optional_part_in_its_place() {
+        use ast::Item;
+        let line = |block_delete, checksum, tail| ast::Line {
+            block_delete,
+            checksum,
+            tail,
+        };
+        assert_eq!(read(""), Ok((line(false, None, None), vec![])));
+        assert_eq!(read("/"), Ok((line(true, None, None), vec![])));
         assert_eq!(
-            items,
-            vec![ast::Item::Word(2, 4), ast::Item::Word(5, 7)],
-            "items"
+            read("/2 G1"),
+            Ok((line(true, None, None), vec![Item::Word(3, 5)]))
         );
-        assert_eq!((l.checksum, l.tail), (Some((8, 11)), Some((12, 17))));
+        assert_eq!(read("*12"), Ok((line(false, Some((0, 3)), None), vec![])));
+        assert_eq!(
+            read("G1 *12 ; c"),
+            Ok((
+                line(false, Some((3, 6)), Some((7, 10))),
+                vec![Item::Word(0, 2)]
+            ))
+        );
+        assert_eq!(
+            read("% G1 X (c) \"s\" *1"),
+            Ok((
+                line(false, Some((15, 17)), None),
+                vec![
+                    Item::Percent(0),
+                    Item::Word(2, 4),
+                    Item::Letter(5, 6),
+                    Item::Comment(7, 10),
+                    Item::Str(11, 14)
+                ]
+            ))
+        );
+        assert_eq!(
+            read("G1 X1 ( open"),
+            Ok((
+                line(false, None, Some((6, 12))),
+                vec![Item::Word(0, 2), Item::Word(3, 5)]
+            ))
+        );
+        assert_eq!(
+            read("; only"),
+            Ok((line(false, None, Some((0, 6))), vec![]))
+        );
+    }
+
+    #[test]
+    fn the_first_token_out_of_place_is_the_error() {
+        assert_eq!(read("G1 / X2").map(|_| ()), Err((3, Tok::Slash("/"), 4)));
+        assert_eq!(
+            read("*12 *13").map(|_| ()),
+            Err((4, Tok::Checksum("*13"), 7))
+        );
+        assert_eq!(read("G1 ; c *12").map(|_| ()).ok(), Some(()));
+        assert_eq!(read("G1 (a) *12 (b").map(|_| ()).ok(), Some(()));
+        assert_eq!(
+            read("G1 *12 (b)").map(|_| ()),
+            Err((7, Tok::Comment("(b)"), 10))
+        );
+        assert_eq!(read("#1=2").map(|_| ()), Err((0, Tok::Other("#"), 1)));
+        assert_eq!(read("G1 X[1+2]").map(|_| ()), Err((4, Tok::Other("["), 5)));
     }
 }

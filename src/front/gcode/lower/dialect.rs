@@ -1,0 +1,443 @@
+//! Lines outside the plain block grammar: LinuxCNC o-word control flow, RepRapFirmware
+//! meta commands, parameters and expressions. They pass through as text, with a warning,
+//! and the positions they may change become unknown.
+
+use super::codes::contains_m99;
+use super::{Lowerer, Placement, Unplain};
+use crate::diag::Diagnostic;
+use crate::front::gcode::lexer::{Spanned, Tok, lex_line};
+use crate::ir::{AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Span, VerbatimReason};
+
+/// RepRapFirmware meta-command keywords that start a line.
+const META_KEYWORDS: &[&str] = &[
+    "if", "elif", "else", "while", "break", "continue", "abort", "var", "global", "set", "echo",
+    "skip",
+];
+/// Meta keywords that open an indented block.
+const META_BLOCK_KEYWORDS: &[&str] = &["if", "elif", "else", "while"];
+
+impl Lowerer {
+    /// Handles an o-word line (LinuxCNC control flow).
+    pub(super) fn oword(
+        &mut self,
+        text: &str,
+        span: Span,
+        toks: &[Spanned<'_>],
+        keyword: &str,
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) {
+        let label = oword_label(text, toks);
+        let kw = keyword.to_ascii_lowercase();
+        let top_level = self.oword_stack.is_empty();
+        // Nothing may be inserted between the lines of a control-flow construct.
+        let placement = Placement::Inside;
+        match kw.as_str() {
+            "sub" | "if" | "repeat" | "do" => self.oword_stack.push((label, kw.clone())),
+            "while" => {
+                let closes_do = self
+                    .oword_stack
+                    .last()
+                    .is_some_and(|(l, k)| *l == label && k == "do");
+                if closes_do {
+                    self.oword_stack.pop();
+                } else {
+                    self.oword_stack.push((label, kw.clone()));
+                }
+            }
+            "endsub" | "endif" | "endwhile" | "endrepeat" => {
+                self.oword_stack.pop();
+            }
+            _ => {}
+        }
+        if top_level {
+            diags.push(
+                Diagnostic::warning(
+                    "gcode::control-flow",
+                    format!("o-word `{kw}` is not evaluated"),
+                )
+                .at_bytes(
+                    span.line,
+                    text,
+                    toks[0].0,
+                    toks.last().map_or(toks[0].2, |t| t.2),
+                )
+                .with_label("passes through unchanged")
+                .with_help(
+                    "o-word subroutines, loops and conditions are copied as written, with \
+                     their bodies; positions after them are treated as unknown",
+                ),
+            );
+        }
+        // A call at the top level records the modes its body starts in. A simple call
+        // (no arguments) inside a body being expanded clobbers nothing: the caller
+        // expands it.
+        let is_call = kw == "call";
+        let inline =
+            is_call && top_level && self.calls_inline && oword_call(text).is_some_and(|c| c.simple);
+        let clob = if inline { AxisSet::EMPTY } else { AxisSet::ALL };
+        let mut block = self.verbatim(text, span, VerbatimReason::ControlFlow, clob, placement);
+        if is_call && top_level {
+            if let BlockKind::Verbatim(v) = &mut block.kind {
+                v.modes = Some(self.call_modes());
+            }
+            if !self.calls_inline {
+                self.feed = None;
+            }
+        }
+        out.push(block);
+    }
+
+    /// Decides whether a line is outside the plain block grammar; reports why.
+    pub(super) fn unplain(
+        &mut self,
+        text: &str,
+        line_no: u32,
+        toks: &[Spanned<'_>],
+        diags: &mut Vec<Diagnostic>,
+    ) -> Option<Unplain> {
+        // A checksum ends the line; anything but a comment after it is an error.
+        let has_expression = toks
+            .iter()
+            .any(|t| matches!(t.1, Tok::Other(c) if "#[]{}=<>@^".contains(c)));
+        if !has_expression
+            && let Some(i) = toks.iter().position(|t| matches!(t.1, Tok::Checksum(_)))
+            && let Some(&(s, _, e)) = toks[i + 1..]
+                .iter()
+                .find(|t| !matches!(t.1, Tok::LineComment(_) | Tok::Comment(_)))
+        {
+            let (cs, ce) = (toks[i].0, toks[i].2);
+            diags.push(
+                Diagnostic::error("gcode::checksum-position", format!("checksum `{}` must end the line", &text[cs..ce]))
+                    .at_bytes(line_no, text, cs, ce)
+                    .with_label("followed by more words")
+                    .with_help(format!("move `{}` (and everything after it) before the checksum, or remove the checksum", &text[s..e])),
+            );
+            return Some(Unplain::Error);
+        }
+        let mut expression = None;
+        let mut odd = None;
+        for (i, &(s, tok, e)) in toks.iter().enumerate() {
+            match tok {
+                Tok::Other(c) if "#[]{}=<>@^".contains(c) => {
+                    expression.get_or_insert((s, e));
+                }
+                Tok::Other(_) | Tok::Ident(_) | Tok::Number(_) => {
+                    odd.get_or_insert((s, e, tok));
+                }
+                Tok::Slash(_) if i > 0 => {
+                    odd.get_or_insert((s, e, tok));
+                }
+                Tok::OpenComment(_) if i > 0 => {}
+                _ => {}
+            }
+        }
+        let first_letter = toks.iter().find_map(|t| match t.1 {
+            Tok::Word(w) | Tok::Letter(w) => w.chars().next().map(|c| c.to_ascii_uppercase()),
+            _ => None,
+        });
+        let command_line = matches!(first_letter, Some('M' | 'T'));
+        let has_string = toks.iter().any(|t| matches!(t.1, Tok::Str(_)));
+        if expression.is_none() && odd.is_none() && (!has_string || command_line) {
+            return if has_string {
+                Some(Unplain::Command)
+            } else {
+                None
+            };
+        }
+        // NaN and infinity are never numbers in G-code, whatever the dialect: `XNaN`,
+        // `X-inf`, `X nan`.
+        for &(_, tok, e) in toks {
+            let Tok::Ident(w) = tok else { continue };
+            let lower = w.to_ascii_lowercase();
+            let name = ["infinity", "nan", "inf"]
+                .into_iter()
+                .find(|n| lower.ends_with(n) && lower.len() <= n.len() + 1);
+            if let Some(name) = name {
+                let at = e - name.len();
+                diags.push(
+                    Diagnostic::error(
+                        "gcode::not-a-number",
+                        format!("`{}` is not a number G-code accepts", &text[at..e]),
+                    )
+                    .at_bytes(line_no, text, at, e)
+                    .with_label("not a finite number")
+                    .with_help("give the word a finite decimal value"),
+                );
+                return Some(Unplain::Error);
+            }
+        }
+
+        if command_line && expression.is_none() {
+            return Some(Unplain::Command);
+        }
+        let (s, e) = expression.unwrap_or_else(|| odd.map(|o| (o.0, o.1)).unwrap_or((0, 0)));
+        diags.push(
+            Diagnostic::warning(
+                "gcode::unevaluated",
+                "line is not plain G-code: parameters, expressions or dialect syntax are not evaluated",
+            )
+            .at_bytes(line_no, text, s, e)
+            .with_label("not evaluated")
+            .with_help("the line is copied as written; positions after it are treated as unknown"),
+        );
+        Some(Unplain::Unevaluated)
+    }
+
+    /// A RepRapFirmware meta command (`if`, `while`, `var`, `echo`...) passes through,
+    /// with the block indented below it; `false` when the line is not one.
+    pub(super) fn meta_command(
+        &mut self,
+        text: &str,
+        span: Span,
+        indent: usize,
+        toks: &[Spanned<'_>],
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) -> bool {
+        let Some(Tok::Ident(word)) = toks.first().map(|t| t.1) else {
+            return false;
+        };
+        let lower = word.to_ascii_lowercase();
+        if !META_KEYWORDS.contains(&lower.as_str()) {
+            return false;
+        }
+        if META_BLOCK_KEYWORDS.contains(&lower.as_str()) {
+            self.meta_indent = Some(indent);
+        }
+        diags.push(
+            Diagnostic::warning(
+                "gcode::meta-command",
+                format!("RepRapFirmware meta command `{lower}` is not evaluated"),
+            )
+            .at_bytes(span.line, text, toks[0].0, toks[0].2)
+            .with_label("passes through unchanged")
+            .with_help(
+                "the line (and the block indented below it) is copied as written; \
+                 positions after it are treated as unknown",
+            ),
+        );
+        out.push(self.pass_through(text, span, VerbatimReason::ControlFlow));
+        true
+    }
+
+    /// A Fanuc program number (`O1000`): at the top a label, after the main program the
+    /// start of a subprogram, whose body passes through up to its M99. `false` when the
+    /// line is not one.
+    pub(super) fn program_number(
+        &mut self,
+        text: &str,
+        span: Span,
+        toks: &[Spanned<'_>],
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) -> bool {
+        let Some(&(s, Tok::Word(w), e)) = toks.first() else {
+            return false;
+        };
+        if !w.starts_with(['O', 'o']) {
+            return false;
+        }
+        if self.program_started {
+            self.in_subprogram = !contains_m99(text);
+            diags.push(
+                Diagnostic::warning(
+                    "gcode::subprogram",
+                    format!(
+                        "subprogram {} passes through unchanged",
+                        w.to_ascii_uppercase()
+                    ),
+                )
+                .at_bytes(span.line, text, s, e)
+                .with_label("body copied as written up to its M99")
+                .with_help("the expand-subprograms pass inlines M98 calls when it is available"),
+            );
+            out.push(self.pass_through(text, span, VerbatimReason::Subprogram));
+        } else {
+            out.push(self.verbatim(
+                text,
+                span,
+                VerbatimReason::Delimiter,
+                AxisSet::EMPTY,
+                Placement::Inside,
+            ));
+        }
+        true
+    }
+
+    /// Lowers a line that [`Lowerer::unplain`] set aside: a command with arguments that
+    /// are not plain words, or a line passed through as written.
+    pub(super) fn lower_unplain(
+        &mut self,
+        text: &str,
+        span: Span,
+        toks: &[Spanned<'_>],
+        reason: Unplain,
+        out: &mut Vec<Block>,
+    ) {
+        match reason {
+            Unplain::Command => {
+                self.program_started = true;
+                let clob = self.command_clobbers(toks);
+                self.pos.forget(clob);
+                let mut block = Block::new(
+                    span,
+                    BlockKind::Command(Command {
+                        text: strip_line_number_and_comments(text).into(),
+                        modes: None,
+                        clobbers: clob,
+                    }),
+                );
+                block.comments = comments_of(text, toks);
+                out.push(block);
+            }
+            Unplain::Unevaluated => {
+                let keeps_modes = !self.apply_plain_modes(toks);
+                out.push(self.verbatim(
+                    text,
+                    span,
+                    VerbatimReason::Unevaluated,
+                    AxisSet::ALL,
+                    Placement::TopLevel { keeps_modes },
+                ));
+            }
+            Unplain::Error => {}
+        }
+    }
+}
+
+/// The o-word keyword of a LinuxCNC control line (`o100 sub`, `o<x> if [..]`).
+pub(super) fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<&'a str> {
+    const KEYWORDS: &[&str] = &[
+        "sub",
+        "endsub",
+        "call",
+        "return",
+        "if",
+        "elseif",
+        "else",
+        "endif",
+        "while",
+        "endwhile",
+        "do",
+        "repeat",
+        "endrepeat",
+        "break",
+        "continue",
+    ];
+    let first = toks.first()?.1;
+    let starts_o = match first {
+        Tok::Word(w) | Tok::Letter(w) => w.starts_with(['o', 'O']),
+        _ => false,
+    };
+    if !starts_o {
+        return None;
+    }
+    toks.iter().skip(1).find_map(|t| match t.1 {
+        Tok::Ident(w) if KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(w)) => Some(w),
+        _ => None,
+    })
+}
+
+/// An o-word call line (`o100 call`, `o<name> call [1] [2]`), as far as the
+/// `expand-subprograms` pass needs it (crate-internal).
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct OwordCall {
+    /// The label, lower case, leading zeros of a number removed (`100`, `<name>`); `None`
+    /// when it is an expression (`o[#2 * 10]`).
+    pub label: Option<String>,
+    /// No arguments and a plain label: the call can be expanded.
+    pub simple: bool,
+    /// Byte range of the label and the keyword in the line, for diagnostics.
+    pub at: (usize, usize),
+}
+
+/// Reads an o-word call line; `None` when the line is not one.
+pub(crate) fn oword_call(text: &str) -> Option<OwordCall> {
+    let toks: Vec<Spanned<'_>> = crate::front::gcode::lexer::tokens(text).collect();
+    let kw = oword_keyword(&toks)?;
+    if !kw.eq_ignore_ascii_case("call") {
+        return None;
+    }
+    let kw_at = toks
+        .iter()
+        .position(|t| matches!(t.1, Tok::Ident(w) if w.eq_ignore_ascii_case("call")))?;
+    let raw = text[toks[0].0 + 1..toks[kw_at].0].trim();
+    let label = if let Some(digits) = raw
+        .strip_prefix(['+'])
+        .or(Some(raw))
+        .filter(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+    {
+        Some(digits.trim_start_matches('0').to_string())
+            .map(|d| if d.is_empty() { "0".to_string() } else { d })
+    } else if raw.starts_with('<') && raw.ends_with('>') && !raw.contains(['[', '#']) {
+        Some(raw.to_ascii_lowercase())
+    } else {
+        None
+    };
+    let args = toks[kw_at + 1..].iter().any(|t| {
+        !matches!(
+            t.1,
+            Tok::Comment(_) | Tok::LineComment(_) | Tok::OpenComment(_)
+        )
+    });
+    Some(OwordCall {
+        simple: label.is_some() && !args,
+        label,
+        at: (toks[0].0, toks[kw_at].2),
+    })
+}
+
+/// The label of an o-word line: the text between `o` and the keyword.
+pub(super) fn oword_label(text: &str, toks: &[Spanned<'_>]) -> String {
+    let end = toks
+        .iter()
+        .skip(1)
+        .find(|t| matches!(t.1, Tok::Ident(_)))
+        .map_or(text.len(), |t| t.0);
+    text[toks[0].0 + 1..end].trim().to_ascii_lowercase()
+}
+
+/// The comments of a line passed through as a command, without their delimiters.
+pub(super) fn comments_of(text: &str, toks: &[Spanned<'_>]) -> Vec<Comment> {
+    toks.iter()
+        .filter_map(|&(s, t, e)| match t {
+            Tok::Comment(_) => Some(Comment {
+                text: text[s + 1..e - 1].to_string(),
+                style: CommentStyle::Paren,
+            }),
+            Tok::OpenComment(_) => Some(Comment {
+                text: text[s + 1..e].to_string(),
+                style: CommentStyle::Paren,
+            }),
+            Tok::LineComment(_) => Some(Comment {
+                text: text[s + 1..e].to_string(),
+                style: CommentStyle::Semicolon,
+            }),
+            _ => None,
+        })
+        .collect()
+}
+
+/// The words of a line as written, without line number, checksum and comments. Words
+/// that touch in the source still touch (`S"net"` must not become `S "net"`).
+pub(super) fn strip_line_number_and_comments(text: &str) -> String {
+    let mut toks = Vec::new();
+    lex_line(text, &mut toks);
+    let mut out = String::new();
+    let mut last_end = None;
+    for (s, t, e) in toks {
+        match t {
+            Tok::Comment(_) | Tok::LineComment(_) | Tok::OpenComment(_) | Tok::Checksum(_) => {}
+            Tok::Word(w) if w.starts_with(['N', 'n']) && last_end.is_none() => {}
+            _ => {
+                if last_end.is_some_and(|end| end < s) {
+                    out.push(' ');
+                }
+                out.push_str(&text[s..e]);
+                last_end = Some(e);
+            }
+        }
+    }
+    out
+}
