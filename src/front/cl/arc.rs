@@ -15,7 +15,7 @@ use std::f64::consts::TAU;
 use nalgebra::{Point3, Unit, Vector3};
 
 use super::Options;
-use super::lower::{Circle, motion_block};
+use super::motion::{Circle, motion_block};
 use super::source::Statement;
 use crate::diag::Diagnostic;
 use crate::ir::{Block, Comment, Feed, MotionKind, Span};

@@ -23,7 +23,7 @@ use nalgebra::{Point3, Unit, Vector3};
 
 use super::Options;
 use super::ast::{Arg, ArgKind};
-use super::lower::{MM_PER_INCH, motion_block};
+use super::motion::{MM_PER_INCH, motion_block};
 use super::source::Statement;
 use crate::diag::Diagnostic;
 use crate::ir::{Block, BlockKind, Feed, FeedMode, MotionKind};
@@ -179,8 +179,8 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
                     at.end,
                 ));
             };
-            match text(x).parse::<f64>() {
-                Ok(v) if v.is_finite() => Ok(v),
+            match crate::num::parse_decimal(text(x)) {
+                Some(v) if v.is_finite() => Ok(v),
                 _ => Err(stmt.locate(
                     Diagnostic::error("cl::bad-number", format!("`{}` is out of range", text(x)))
                         .with_label("too large"),

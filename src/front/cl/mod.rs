@@ -82,7 +82,8 @@ pub mod lexer;
 mod arc;
 mod cycle;
 mod lower;
-mod scan;
+mod motion;
+mod read;
 mod source;
 
 use std::io::BufRead;
@@ -94,12 +95,6 @@ use crate::front::Frontend;
 use crate::ir::Block;
 
 pub use crate::front::gcode::Program;
-
-lalrpop_util::lalrpop_mod!(
-    #[allow(clippy::all, missing_docs, unused)]
-    grammar,
-    "/cldata.rs"
-);
 
 /// The length unit of a CL program that does not name one.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -207,18 +202,9 @@ impl<R: BufRead> Parser<R> {
                 break;
             }
             let join = !self.lower.is_triplet();
-            let lower = &mut self.lower;
-            let mut quick = |chunk: &[u8], at| lower.plain_gotos(chunk, at, out, want);
-            match self
-                .source
-                .next_statement(&mut self.stmt, join, diags, &mut quick)
-            {
-                source::Read::Statement => {
-                    self.lower.statement(&self.stmt, out, diags);
-                    continue;
-                }
-                source::Read::Taken => continue,
-                source::Read::End => {}
+            if self.source.next_statement(&mut self.stmt, join, diags) {
+                self.lower.statement(&self.stmt, out, diags);
+                continue;
             }
             self.done = true;
             let counts = self.source.counts;
