@@ -67,10 +67,7 @@ enum At {
 
 /// Reads the statement `code`: its major words and `/`, and its arguments into `args`
 /// (cleared first); or the first token that does not fit the grammar.
-pub(super) fn statement<'a>(
-    code: &'a str,
-    args: &mut Vec<Arg>,
-) -> Result<Syntax, Unexpected<'a>> {
+pub(super) fn statement<'a>(code: &'a str, args: &mut Vec<Arg>) -> Result<Syntax, Unexpected<'a>> {
     args.clear();
     let mut at = At::Start;
     let mut major = None;

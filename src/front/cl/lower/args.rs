@@ -67,7 +67,12 @@ impl<'a> Args<'a> {
     }
 
     /// An error when the count of arguments is not in `counts`.
-    pub(super) fn arity(&self, major: &str, counts: &[usize], what: &str) -> Result<(), Diagnostic> {
+    pub(super) fn arity(
+        &self,
+        major: &str,
+        counts: &[usize],
+        what: &str,
+    ) -> Result<(), Diagnostic> {
         if counts.contains(&self.list.len()) {
             return Ok(());
         }
@@ -85,4 +90,3 @@ impl<'a> Args<'a> {
         ))
     }
 }
-

@@ -321,7 +321,6 @@ impl Lowerer {
         Ok(())
     }
 
-
     /// `CUTCOM/LEFT` or `RIGHT`: the points stay the tool position (one warning).
     pub(super) fn cutcom(&mut self, a: &Args<'_>, diags: &mut Vec<Diagnostic>) {
         let side = a.list.first().and_then(|x| a.word(x));
@@ -353,5 +352,4 @@ mod tests {
         assert_eq!(format_number(-0.00001), "0");
         assert_eq!(format_number(1.23456), "1.2346");
     }
-
 }

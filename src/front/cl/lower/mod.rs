@@ -19,7 +19,9 @@ use super::read::{self, major_words, syntax_error};
 use super::source::{Probe, Statement};
 use super::{Options, Units, arc, cycle};
 use crate::diag::Diagnostic;
-use crate::ir::{AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode, Span, Text};
+use crate::ir::{
+    AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode, Span, Text,
+};
 use args::Args;
 use point::Point;
 use triplet::Triplet;
@@ -514,5 +516,4 @@ mod tests {
         assert!(is_listing_line("=========="));
         assert!(!is_listing_line("GOTO/1,2,3"));
     }
-
 }

@@ -358,7 +358,6 @@ impl Lowerer {
             ),
         );
     }
-
 }
 
 /// What a `CIRCLE` or `MOVARC` writes: its plain numbers and its keyword values.
@@ -378,8 +377,8 @@ struct Written {
 /// `TIMES`, `ANGLE`, `RADIUS`, `CENTER` and `AXIS`.
 fn circle_words(a: &Args<'_>, major: &str) -> Result<Written, Diagnostic> {
     let mut w = Written {
-    plain: Vec::with_capacity(11),
-    ..Written::default()
+        plain: Vec::with_capacity(11),
+        ..Written::default()
     };
     let mut i = 0;
     let take = |i: &mut usize, n: usize| -> Result<Vec<f64>, Diagnostic> {
