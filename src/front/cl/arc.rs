@@ -14,8 +14,8 @@ use std::f64::consts::TAU;
 
 use nalgebra::{Point3, Unit, Vector3};
 
-use super::Options;
 use super::motion::{Circle, motion_block};
+use super::options::Options;
 use super::source::Statement;
 use crate::diag::Diagnostic;
 use crate::ir::{Block, Comment, Feed, MotionKind, Span};

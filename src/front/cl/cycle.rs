@@ -21,9 +21,9 @@
 
 use nalgebra::{Point3, Unit, Vector3};
 
-use super::Options;
 use super::ast::{Arg, ArgKind};
 use super::motion::{MM_PER_INCH, motion_block};
+use super::options::Options;
 use super::source::Statement;
 use crate::diag::Diagnostic;
 use crate::ir::{Block, BlockKind, Feed, FeedMode, MotionKind};

@@ -373,8 +373,8 @@ fn take_line(
     !*open
 }
 
-/// Where a `$$` comment starts in `text`. A byte search for `$`, since most lines have
-/// none and this runs on every line.
+/// Where a `$$` comment starts in `text` (a single `$` at the end of the code is a
+/// continuation mark, not a comment).
 fn comment_start(text: &str) -> Option<usize> {
     let bytes = text.as_bytes();
     memchr::memchr_iter(b'$', bytes).find(|&i| bytes.get(i + 1) == Some(&b'$'))

@@ -15,9 +15,10 @@ use nalgebra::{Point3, Unit, Vector3};
 
 use super::ast::{Arg, Statement as Syntax};
 use super::motion::{Circle, MM_PER_INCH};
+use super::options::{Options, Units};
 use super::read::{self, major_words, syntax_error};
 use super::source::{Probe, Statement};
-use super::{Options, Units, arc, cycle};
+use super::{arc, cycle};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode, Span, Text,
