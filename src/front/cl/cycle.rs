@@ -139,24 +139,16 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
             ));
         }
     };
-    let Written {
-        depth,
-        rapto,
-        rtrcto,
-        dwell,
-        first_peck,
-        sub_peck,
-        feed,
-    } = written(stmt, args)?;
-    let Some(depth) = depth else {
+    let w = written(stmt, args)?;
+    let Some(depth) = w.depth else {
         return Err(unsupported(
             stmt,
             args,
             format!("CYCLE/{name} gives no depth (FEDTO)"),
         ));
     };
-    let lengths = [Some(depth), rapto, rtrcto, first_peck, sub_peck];
-    if lengths.iter().flatten().any(|v| *v < 0.0) || dwell < 0.0 {
+    let lengths = [Some(depth), w.rapto, w.rtrcto, w.first_peck, w.sub_peck];
+    if lengths.iter().flatten().any(|v| *v < 0.0) || w.dwell < 0.0 {
         let (s, e) = all(stmt, args);
         return Err(stmt.locate(
             Diagnostic::error("cl::bad-value", "a CYCLE depth, height or time is negative")
@@ -168,7 +160,7 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
             e,
         ));
     }
-    let feed = match feed {
+    let feed = match w.feed {
         Some((v, factor, mode)) => {
             if v < 0.0 {
                 let (s, e) = all(stmt, args);
@@ -190,11 +182,11 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
     let cycle = Cycle {
         kind,
         depth: scaled(depth),
-        rapto: scaled(rapto.unwrap_or(0.0)),
-        rtrcto: rtrcto.map(scaled),
-        dwell,
-        first_peck: first_peck.map(scaled),
-        sub_peck: sub_peck.map(scaled),
+        rapto: scaled(w.rapto.unwrap_or(0.0)),
+        rtrcto: w.rtrcto.map(scaled),
+        dwell: w.dwell,
+        first_peck: w.first_peck.map(scaled),
+        sub_peck: w.sub_peck.map(scaled),
         feed,
     };
     let values = [cycle.depth, cycle.rapto, cycle.rtrcto.unwrap_or(0.0)];
@@ -224,13 +216,15 @@ struct Written {
 /// Reads the values after the cycle type: plain numbers (depth, clearance) and the values
 /// after minor words.
 fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
-    let mut depth = None;
-    let mut rapto = None;
-    let mut rtrcto = None;
-    let mut dwell = 0.0;
-    let mut first_peck = None;
-    let mut sub_peck = None;
-    let mut feed = None;
+    let mut w = Written {
+        depth: None,
+        rapto: None,
+        rtrcto: None,
+        dwell: 0.0,
+        first_peck: None,
+        sub_peck: None,
+        feed: None,
+    };
     let mut positional = 0;
     let mut i = 1;
     while i < args.len() {
@@ -265,8 +259,8 @@ fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
         if a.kind == ArgKind::Number {
             let v = number(i)?;
             match positional {
-                0 if depth.is_none() => depth = Some(v),
-                _ if rapto.is_none() => rapto = Some(v),
+                0 if w.depth.is_none() => w.depth = Some(v),
+                _ if w.rapto.is_none() => w.rapto = Some(v),
                 _ => {
                     return Err(unsupported(
                         stmt,
@@ -282,16 +276,16 @@ fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
         let word = text(stmt, a).to_ascii_uppercase();
         let v = number(i + 1)?;
         match word.as_str() {
-            "FEDTO" | "DEPTH" => depth = Some(v),
-            "RAPTO" => rapto = Some(v),
-            "RTRCTO" => rtrcto = Some(v),
-            "DWELL" => dwell = v,
-            "1STPECK" => first_peck = Some(v),
-            "SUBPECK" | "STEP" => sub_peck = Some(v),
-            "MMPM" => feed = Some((v, 1.0, FeedMode::PerMinute)),
-            "IPM" => feed = Some((v, MM_PER_INCH, FeedMode::PerMinute)),
-            "MMPR" => feed = Some((v, 1.0, FeedMode::PerRevolution)),
-            "IPR" => feed = Some((v, MM_PER_INCH, FeedMode::PerRevolution)),
+            "FEDTO" | "DEPTH" => w.depth = Some(v),
+            "RAPTO" => w.rapto = Some(v),
+            "RTRCTO" => w.rtrcto = Some(v),
+            "DWELL" => w.dwell = v,
+            "1STPECK" => w.first_peck = Some(v),
+            "SUBPECK" | "STEP" => w.sub_peck = Some(v),
+            "MMPM" => w.feed = Some((v, 1.0, FeedMode::PerMinute)),
+            "IPM" => w.feed = Some((v, MM_PER_INCH, FeedMode::PerMinute)),
+            "MMPR" => w.feed = Some((v, 1.0, FeedMode::PerRevolution)),
+            "IPR" => w.feed = Some((v, MM_PER_INCH, FeedMode::PerRevolution)),
             _ => {
                 return Err(unsupported(
                     stmt,
@@ -302,15 +296,7 @@ fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
         }
         i += 2;
     }
-    Ok(Written {
-        depth,
-        rapto,
-        rtrcto,
-        dwell,
-        first_peck,
-        sub_peck,
-        feed,
-    })
+    Ok(w)
 }
 
 /// The bytes of an argument.
