@@ -417,21 +417,24 @@ impl Lowerer {
             }
             b"VS" => {}
             b"PM" => self.polygon_mode(cmd, &nums, out),
-            b"EP" | b"FP" => {
-                self.warn_once(
-                    cmd,
-                    diags,
-                    Diagnostic::warning(
-                        "hpgl::polygon",
-                        format!(
-                            "{}: polygons are cut along their edges as they are defined, once; edge and fill commands add nothing",
-                            cmd.name()
-                        ),
-                    ),
-                );
-            }
+            b"EP" | b"FP" => self.polygon_edges(cmd, diags),
             _ => self.pass_on(cmd, out, diags),
         }
+    }
+
+    /// `EP`, `FP`: nothing to cut beyond the polygon's edges (one warning).
+    fn polygon_edges(&mut self, cmd: &Command, diags: &mut Vec<Diagnostic>) {
+        self.warn_once(
+            cmd,
+            diags,
+            Diagnostic::warning(
+                "hpgl::polygon",
+                format!(
+                    "{}: polygons are cut along their edges as they are defined, once; edge and fill commands add nothing",
+                    cmd.name()
+                ),
+            ),
+        );
     }
 
     /// `IP`: the scaling points P1 and P2, in plotter units.
