@@ -19,10 +19,8 @@
 //! in LALRPOP (`grammar/cldata.lalrpop`) is kept as the tests' oracle: this reader accepts
 //! what it accepts, and rejects the rest at the same token.
 
-use logos::Logos;
-
 use super::ast::{Arg, ArgKind, Statement as Syntax};
-use super::lexer::Tok;
+use super::lexer::{Tok, tokens};
 use super::source::Statement;
 use crate::diag::Diagnostic;
 
@@ -33,17 +31,6 @@ pub(super) struct Unexpected<'a> {
     pub start: usize,
     pub end: usize,
     pub token: Option<Tok<'a>>,
-}
-
-/// The tokens of `code`, each with its byte range.
-fn tokens(code: &str) -> impl Iterator<Item = (usize, Tok<'_>, usize)> {
-    let mut lexer = Tok::lexer(code);
-    std::iter::from_fn(move || {
-        let tok = lexer.next()?;
-        let span = lexer.span();
-        let tok = tok.unwrap_or_else(|()| Tok::Other(lexer.slice()));
-        Some((span.start, tok, span.end))
-    })
 }
 
 /// Where the reader is in the grammar.
