@@ -14,8 +14,8 @@ use std::f64::consts::TAU;
 
 use nalgebra::{Point3, Unit, Vector3};
 
-use super::Options;
-use super::lower::{Circle, motion_block};
+use super::motion::{Circle, motion_block};
+use super::options::Options;
 use super::source::Statement;
 use crate::diag::Diagnostic;
 use crate::ir::{Block, Comment, Feed, MotionKind, Span};
@@ -109,72 +109,13 @@ impl Run {
         }
         let u = rs / r0;
         let v = n.cross(&u);
-        let mut partial = re.dot(&v).atan2(re.dot(&u));
-        if partial < 0.0 {
-            partial += TAU;
-        }
-        let coincident = (re / r1 - u).norm() * r0.max(r1) < SAME_POINT;
-        if coincident {
-            // The same point: a full circle, unless TIMES or ANGLE count the turns.
-            partial = if circle.turns.is_some() || circle.angle.is_some() {
-                0.0
-            } else {
-                TAU
-            };
-        }
-        let mut turns = f64::from(circle.turns.unwrap_or(0));
-        if let Some(angle) = circle.angle {
-            let whole = angle.abs().to_radians();
-            let k = ((whole - partial) / TAU).round().max(0.0);
-            if ((partial + k * TAU) - whole).abs() > 1f64.to_radians() {
-                diags.push(
-                    stmt.locate_all(Diagnostic::warning(
-                        "cl::arc-angle",
-                        format!(
-                            "the ANGLE of the arc on line {} ({angle} degrees) does not reach \
-                             its end point ({:.4} degrees)",
-                            circle.line,
-                            partial.to_degrees()
-                        ),
-                    ))
-                    .with_help("the arc ends at the GOTO point; ANGLE only counts full turns"),
-                );
-            }
-            turns = turns.max(k.min(10_000.0));
-        }
-        let sweep = partial + turns * TAU;
-        if sweep.is_nan() || sweep <= 0.0 {
-            return Err(warn(format!(
+        let sweep = sweep(circle, (u, v), re, (r0, r1), stmt, diags).ok_or_else(|| {
+            warn(format!(
                 "the arc of the CIRCLE on line {} has no length",
                 circle.line
-            )));
-        }
-        // A piece of angle `step` on radius R deviates from the arc by its sagitta
-        // 2 R sin²(step/4).
-        let radius = r0.max(r1);
-        let tol = options.arc_tolerance;
-        let step = if tol > 0.0 && tol < 2.0 * radius {
-            (4.0 * (tol / (2.0 * radius)).sqrt().asin()).min(std::f64::consts::FRAC_PI_2)
-        } else {
-            std::f64::consts::FRAC_PI_2
-        };
-        let needed = (sweep / step).ceil();
-        let segments = if needed > f64::from(MAX_SEGMENTS) {
-            diags.push(
-                stmt.locate_all(Diagnostic::warning(
-                    "cl::arc-pieces",
-                    format!(
-                        "the arc of the CIRCLE on line {} needs {needed:.0} pieces for the \
-                         chord tolerance; it is cut into {MAX_SEGMENTS}",
-                        circle.line
-                    ),
-                ))
-                .with_help("raise `arc_tolerance` or check the CIRCLE radius and TIMES"),
-            );
-            MAX_SEGMENTS
-        } else {
-            (needed as u32).max(1)
-        };
+            ))
+        })?;
+        let segments = pieces(circle, sweep, r0.max(r1), stmt, options, diags);
         Ok(Run {
             centre: circle.centre,
             normal: n,
@@ -228,6 +169,91 @@ impl Run {
             }
             out.push(b);
         }
+    }
+}
+
+/// The angle the arc sweeps about the circle's axis (`u` towards the start, `v` a quarter
+/// turn on), from the start to `re`, the end's offset from the axis: the partial turn plus
+/// the full turns written with `TIMES` or implied by `ANGLE`; `None` when it has no length.
+fn sweep(
+    circle: &Circle,
+    (u, v): (Vector3<f64>, Vector3<f64>),
+    re: Vector3<f64>,
+    (r0, r1): (f64, f64),
+    stmt: &Statement,
+    diags: &mut Vec<Diagnostic>,
+) -> Option<f64> {
+    let mut partial = re.dot(&v).atan2(re.dot(&u));
+    if partial < 0.0 {
+        partial += TAU;
+    }
+    let coincident = (re / r1 - u).norm() * r0.max(r1) < SAME_POINT;
+    if coincident {
+        // The same point: a full circle, unless TIMES or ANGLE count the turns.
+        partial = if circle.turns.is_some() || circle.angle.is_some() {
+            0.0
+        } else {
+            TAU
+        };
+    }
+    let mut turns = f64::from(circle.turns.unwrap_or(0));
+    if let Some(angle) = circle.angle {
+        let whole = angle.abs().to_radians();
+        let k = ((whole - partial) / TAU).round().max(0.0);
+        if ((partial + k * TAU) - whole).abs() > 1f64.to_radians() {
+            diags.push(
+                stmt.locate_all(Diagnostic::warning(
+                    "cl::arc-angle",
+                    format!(
+                        "the ANGLE of the arc on line {} ({angle} degrees) does not reach \
+                         its end point ({:.4} degrees)",
+                        circle.line,
+                        partial.to_degrees()
+                    ),
+                ))
+                .with_help("the arc ends at the GOTO point; ANGLE only counts full turns"),
+            );
+        }
+        turns = turns.max(k.min(10_000.0));
+    }
+    let sweep = partial + turns * TAU;
+    (sweep > 0.0).then_some(sweep)
+}
+
+/// How many straight pieces an arc of `sweep` radians on `radius` needs for the chord
+/// tolerance (at most [`MAX_SEGMENTS`], with a warning).
+fn pieces(
+    circle: &Circle,
+    sweep: f64,
+    radius: f64,
+    stmt: &Statement,
+    options: &Options,
+    diags: &mut Vec<Diagnostic>,
+) -> u32 {
+    // A piece of angle `step` on radius R deviates from the arc by its sagitta
+    // 2 R sin²(step/4).
+    let tol = options.arc_tolerance;
+    let step = if tol > 0.0 && tol < 2.0 * radius {
+        (4.0 * (tol / (2.0 * radius)).sqrt().asin()).min(std::f64::consts::FRAC_PI_2)
+    } else {
+        std::f64::consts::FRAC_PI_2
+    };
+    let needed = (sweep / step).ceil();
+    if needed > f64::from(MAX_SEGMENTS) {
+        diags.push(
+            stmt.locate_all(Diagnostic::warning(
+                "cl::arc-pieces",
+                format!(
+                    "the arc of the CIRCLE on line {} needs {needed:.0} pieces for the \
+                     chord tolerance; it is cut into {MAX_SEGMENTS}",
+                    circle.line
+                ),
+            ))
+            .with_help("raise `arc_tolerance` or check the CIRCLE radius and TIMES"),
+        );
+        MAX_SEGMENTS
+    } else {
+        (needed as u32).max(1)
     }
 }
 

@@ -21,9 +21,9 @@
 
 use nalgebra::{Point3, Unit, Vector3};
 
-use super::Options;
 use super::ast::{Arg, ArgKind};
-use super::lower::{MM_PER_INCH, motion_block};
+use super::motion::{MM_PER_INCH, motion_block};
+use super::options::Options;
 use super::source::Statement;
 use crate::diag::Diagnostic;
 use crate::ir::{Block, BlockKind, Feed, FeedMode, MotionKind};
@@ -112,25 +112,8 @@ pub(super) enum Parsed {
 /// Reads a `CYCLE` statement's arguments; `Err` is an error, or a warning when the cycle
 /// cannot be lowered (it then passes through as a comment).
 pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed, Diagnostic> {
-    let text = |a: &Arg| &stmt.code[a.start..a.end];
-    let all = || {
-        let (s, e) = match (args.first(), args.last()) {
-            (Some(f), Some(l)) => (f.start, l.end),
-            _ => (0, stmt.code.trim_end().len()),
-        };
-        (s, e.max(s + 1))
-    };
-    let unsupported = |why: String| {
-        let (s, e) = all();
-        stmt.locate(Diagnostic::warning("cl::cycle-unsupported", why), s, e)
-            .with_label("not lowered")
-            .with_help(
-                "passed through as a comment; the GOTOs up to CYCLE/OFF move to the written \
-                 points",
-            )
-    };
     let Some(first) = args.first() else {
-        let (s, e) = all();
+        let (s, e) = all(stmt, args);
         return Err(stmt.locate(
             Diagnostic::error("cl::arity", "CYCLE needs a cycle type")
                 .with_label("here")
@@ -139,7 +122,7 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
             e,
         ));
     };
-    let name = text(first).to_ascii_uppercase();
+    let name = text(stmt, first).to_ascii_uppercase();
     let kind = match name.as_str() {
         "OFF" => return Ok(Parsed::Off),
         "ON" => return Ok(Parsed::On),
@@ -149,88 +132,24 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
         "BRKCHP" => Kind::ChipBreak,
         "REAM" | "BORE" => Kind::FeedOut,
         _ => {
-            return Err(unsupported(format!(
-                "CYCLE/{name} is not a drilling cycle ncpost lowers"
-            )));
+            return Err(unsupported(
+                stmt,
+                args,
+                format!("CYCLE/{name} is not a drilling cycle ncpost lowers"),
+            ));
         }
     };
-    let mut depth = None;
-    let mut rapto = None;
-    let mut rtrcto = None;
-    let mut dwell = 0.0;
-    let mut first_peck = None;
-    let mut sub_peck = None;
-    let mut feed = None;
-    let mut positional = 0;
-    let mut i = 1;
-    while i < args.len() {
-        let a = &args[i];
-        let number = |k: usize| -> Result<f64, Diagnostic> {
-            let Some(x) = args.get(k).filter(|x| x.kind == ArgKind::Number) else {
-                let at = args.get(k).unwrap_or(a);
-                return Err(stmt.locate(
-                    Diagnostic::error(
-                        "cl::bad-number",
-                        format!("`{}` needs a number after it", text(a)),
-                    )
-                    .with_label("number expected")
-                    .with_help("write the keyword and then its value, e.g. FEDTO,5"),
-                    at.start,
-                    at.end,
-                ));
-            };
-            match text(x).parse::<f64>() {
-                Ok(v) if v.is_finite() => Ok(v),
-                _ => Err(stmt.locate(
-                    Diagnostic::error("cl::bad-number", format!("`{}` is out of range", text(x)))
-                        .with_label("too large"),
-                    x.start,
-                    x.end,
-                )),
-            }
-        };
-        if a.kind == ArgKind::Number {
-            let v = number(i)?;
-            match positional {
-                0 if depth.is_none() => depth = Some(v),
-                _ if rapto.is_none() => rapto = Some(v),
-                _ => {
-                    return Err(unsupported(
-                        "the CYCLE has more values than ncpost reads".into(),
-                    ));
-                }
-            }
-            positional += 1;
-            i += 1;
-            continue;
-        }
-        let word = text(a).to_ascii_uppercase();
-        let v = number(i + 1)?;
-        match word.as_str() {
-            "FEDTO" | "DEPTH" => depth = Some(v),
-            "RAPTO" => rapto = Some(v),
-            "RTRCTO" => rtrcto = Some(v),
-            "DWELL" => dwell = v,
-            "1STPECK" => first_peck = Some(v),
-            "SUBPECK" | "STEP" => sub_peck = Some(v),
-            "MMPM" => feed = Some((v, 1.0, FeedMode::PerMinute)),
-            "IPM" => feed = Some((v, MM_PER_INCH, FeedMode::PerMinute)),
-            "MMPR" => feed = Some((v, 1.0, FeedMode::PerRevolution)),
-            "IPR" => feed = Some((v, MM_PER_INCH, FeedMode::PerRevolution)),
-            _ => {
-                return Err(unsupported(format!(
-                    "the CYCLE word `{word}` is not understood"
-                )));
-            }
-        }
-        i += 2;
-    }
-    let Some(depth) = depth else {
-        return Err(unsupported(format!("CYCLE/{name} gives no depth (FEDTO)")));
+    let w = written(stmt, args)?;
+    let Some(depth) = w.depth else {
+        return Err(unsupported(
+            stmt,
+            args,
+            format!("CYCLE/{name} gives no depth (FEDTO)"),
+        ));
     };
-    let lengths = [Some(depth), rapto, rtrcto, first_peck, sub_peck];
-    if lengths.iter().flatten().any(|v| *v < 0.0) || dwell < 0.0 {
-        let (s, e) = all();
+    let lengths = [Some(depth), w.rapto, w.rtrcto, w.first_peck, w.sub_peck];
+    if lengths.iter().flatten().any(|v| *v < 0.0) || w.dwell < 0.0 {
+        let (s, e) = all(stmt, args);
         return Err(stmt.locate(
             Diagnostic::error("cl::bad-value", "a CYCLE depth, height or time is negative")
                 .with_label("here")
@@ -241,10 +160,10 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
             e,
         ));
     }
-    let feed = match feed {
+    let feed = match w.feed {
         Some((v, factor, mode)) => {
             if v < 0.0 {
-                let (s, e) = all();
+                let (s, e) = all(stmt, args);
                 return Err(stmt.locate(
                     Diagnostic::error("cl::bad-value", "the cycle feed is negative")
                         .with_label("here"),
@@ -263,16 +182,16 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
     let cycle = Cycle {
         kind,
         depth: scaled(depth),
-        rapto: scaled(rapto.unwrap_or(0.0)),
-        rtrcto: rtrcto.map(scaled),
-        dwell,
-        first_peck: first_peck.map(scaled),
-        sub_peck: sub_peck.map(scaled),
+        rapto: scaled(w.rapto.unwrap_or(0.0)),
+        rtrcto: w.rtrcto.map(scaled),
+        dwell: w.dwell,
+        first_peck: w.first_peck.map(scaled),
+        sub_peck: w.sub_peck.map(scaled),
         feed,
     };
     let values = [cycle.depth, cycle.rapto, cycle.rtrcto.unwrap_or(0.0)];
     if !values.iter().all(|v| v.is_finite()) {
-        let (s, e) = all();
+        let (s, e) = all(stmt, args);
         return Err(stmt.locate(
             Diagnostic::error("cl::bad-number", "a CYCLE value is out of range").with_label("here"),
             s,
@@ -280,6 +199,129 @@ pub(super) fn parse(stmt: &Statement, args: &[Arg], scale: f64) -> Result<Parsed
         ));
     }
     Ok(Parsed::Cycle(cycle))
+}
+
+/// The values a `CYCLE` writes, as written (in the program's length unit).
+struct Written {
+    depth: Option<f64>,
+    rapto: Option<f64>,
+    rtrcto: Option<f64>,
+    dwell: f64,
+    first_peck: Option<f64>,
+    sub_peck: Option<f64>,
+    /// Rate, mm per inch or 1, per minute or revolution.
+    feed: Option<(f64, f64, FeedMode)>,
+}
+
+/// Reads the values after the cycle type: plain numbers (depth, clearance) and the values
+/// after minor words.
+fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
+    let mut w = Written {
+        depth: None,
+        rapto: None,
+        rtrcto: None,
+        dwell: 0.0,
+        first_peck: None,
+        sub_peck: None,
+        feed: None,
+    };
+    let mut positional = 0;
+    let mut i = 1;
+    while i < args.len() {
+        let a = &args[i];
+        let number = |k: usize| -> Result<f64, Diagnostic> {
+            let Some(x) = args.get(k).filter(|x| x.kind == ArgKind::Number) else {
+                let at = args.get(k).unwrap_or(a);
+                return Err(stmt.locate(
+                    Diagnostic::error(
+                        "cl::bad-number",
+                        format!("`{}` needs a number after it", text(stmt, a)),
+                    )
+                    .with_label("number expected")
+                    .with_help("write the keyword and then its value, e.g. FEDTO,5"),
+                    at.start,
+                    at.end,
+                ));
+            };
+            match crate::num::parse_decimal(text(stmt, x)) {
+                Some(v) if v.is_finite() => Ok(v),
+                _ => Err(stmt.locate(
+                    Diagnostic::error(
+                        "cl::bad-number",
+                        format!("`{}` is out of range", text(stmt, x)),
+                    )
+                    .with_label("too large"),
+                    x.start,
+                    x.end,
+                )),
+            }
+        };
+        if a.kind == ArgKind::Number {
+            let v = number(i)?;
+            match positional {
+                0 if w.depth.is_none() => w.depth = Some(v),
+                _ if w.rapto.is_none() => w.rapto = Some(v),
+                _ => {
+                    return Err(unsupported(
+                        stmt,
+                        args,
+                        "the CYCLE has more values than ncpost reads".into(),
+                    ));
+                }
+            }
+            positional += 1;
+            i += 1;
+            continue;
+        }
+        let word = text(stmt, a).to_ascii_uppercase();
+        let v = number(i + 1)?;
+        match word.as_str() {
+            "FEDTO" | "DEPTH" => w.depth = Some(v),
+            "RAPTO" => w.rapto = Some(v),
+            "RTRCTO" => w.rtrcto = Some(v),
+            "DWELL" => w.dwell = v,
+            "1STPECK" => w.first_peck = Some(v),
+            "SUBPECK" | "STEP" => w.sub_peck = Some(v),
+            "MMPM" => w.feed = Some((v, 1.0, FeedMode::PerMinute)),
+            "IPM" => w.feed = Some((v, MM_PER_INCH, FeedMode::PerMinute)),
+            "MMPR" => w.feed = Some((v, 1.0, FeedMode::PerRevolution)),
+            "IPR" => w.feed = Some((v, MM_PER_INCH, FeedMode::PerRevolution)),
+            _ => {
+                return Err(unsupported(
+                    stmt,
+                    args,
+                    format!("the CYCLE word `{word}` is not understood"),
+                ));
+            }
+        }
+        i += 2;
+    }
+    Ok(w)
+}
+
+/// The bytes of an argument.
+fn text<'a>(stmt: &'a Statement, a: &Arg) -> &'a str {
+    &stmt.code[a.start..a.end]
+}
+
+/// The byte range of all arguments (of the statement when there are none).
+fn all(stmt: &Statement, args: &[Arg]) -> (usize, usize) {
+    let (s, e) = match (args.first(), args.last()) {
+        (Some(f), Some(l)) => (f.start, l.end),
+        _ => (0, stmt.code.trim_end().len()),
+    };
+    (s, e.max(s + 1))
+}
+
+/// The warning for a cycle that is not lowered.
+fn unsupported(stmt: &Statement, args: &[Arg], why: String) -> Diagnostic {
+    let (s, e) = all(stmt, args);
+    stmt.locate(Diagnostic::warning("cl::cycle-unsupported", why), s, e)
+        .with_label("not lowered")
+        .with_help(
+            "passed through as a comment; the GOTOs up to CYCLE/OFF move to the written \
+             points",
+        )
 }
 
 impl Cycle {

@@ -45,12 +45,25 @@ pub type Spanned<'a> = (usize, Tok<'a>, usize);
 /// ```
 pub fn lex<'a>(text: &'a str, out: &mut Vec<Spanned<'a>>) {
     out.clear();
+    out.extend(tokens(text));
+}
+
+/// The tokens of `text`, one by one, as [`lex`] gives them.
+///
+/// ```
+/// use ncpost::front::cl::lexer::{tokens, Tok};
+/// let mut toks = tokens("GOTO/1");
+/// assert_eq!(toks.next(), Some((0, Tok::Word("GOTO"), 4)));
+/// assert_eq!(toks.nth(1), Some((5, Tok::Number("1"), 6)));
+/// ```
+pub fn tokens(text: &str) -> impl Iterator<Item = Spanned<'_>> {
     let mut lexer = Tok::lexer(text);
-    while let Some(tok) = lexer.next() {
+    std::iter::from_fn(move || {
+        let tok = lexer.next()?;
         let span = lexer.span();
         let tok = tok.unwrap_or_else(|()| Tok::Other(lexer.slice()));
-        out.push((span.start, tok, span.end));
-    }
+        Some((span.start, tok, span.end))
+    })
 }
 
 #[cfg(test)]

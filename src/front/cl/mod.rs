@@ -34,6 +34,14 @@
 //! number, a wrong count of values, a zero axis vector) are errors with line and column,
 //! and reading goes on with the next statement.
 //!
+//! # Reading
+//!
+//! Lines become statements in `source` (continuation, comments, the look at the start),
+//! statements become tokens in [`lexer`] (logos) and major words and arguments in `read`
+//! (the statement grammar, in one pass), and `lower` turns them into blocks with the
+//! program's modal state. Every statement takes this one path; numbers are read by
+//! [`crate::num::parse_decimal`].
+//!
 //! # Choices
 //!
 //! - **Units.** With [`Options::units`] `auto`, a program that names no unit before its
@@ -82,76 +90,19 @@ pub mod lexer;
 mod arc;
 mod cycle;
 mod lower;
-mod scan;
+mod motion;
+mod options;
+mod read;
 mod source;
 
 use std::io::BufRead;
-
-use serde::{Deserialize, Serialize};
 
 use crate::diag::Diagnostic;
 use crate::front::Frontend;
 use crate::ir::Block;
 
 pub use crate::front::gcode::Program;
-
-lalrpop_util::lalrpop_mod!(
-    #[allow(clippy::all, missing_docs, unused)]
-    grammar,
-    "/cldata.rs"
-);
-
-/// The length unit of a CL program that does not name one.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "kebab-case")]
-pub enum Units {
-    /// Millimetres, unless the first feed with a unit word is in inches (`IPM`, `IPR`).
-    #[default]
-    Auto,
-    /// Millimetres.
-    Mm,
-    /// Inches.
-    Inch,
-}
-
-/// Frontend options.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Options {
-    /// Chord tolerance (mm) for turning CIRCLE/MOVARC arcs into straight pieces in the
-    /// part frame.
-    pub arc_tolerance: f64,
-    /// Largest distance (mm) of an arc's start or end point from its circle, beyond
-    /// which the arc becomes a straight move with a warning (0.1 % of the radius is also
-    /// allowed).
-    pub radius_tolerance: f64,
-    /// Length unit before any `UNITS` statement.
-    pub units: Units,
-    /// Command for `END` (end of a program section); empty passes it as a comment.
-    pub end_command: String,
-    /// Command for `FINI` (end of the program); empty passes it as a comment.
-    pub fini_command: String,
-    /// How far (mm) a pecking drill cycle backs off before the next peck, at most the
-    /// cycle's `RAPTO`.
-    pub peck_clearance: f64,
-    /// Longest line accepted, bytes; a longer line is an error and is skipped. Also the
-    /// limit of a statement continued over several lines.
-    pub max_line_len: usize,
-}
-
-impl Default for Options {
-    fn default() -> Self {
-        Options {
-            arc_tolerance: 0.001,
-            radius_tolerance: 0.01,
-            units: Units::Auto,
-            end_command: "M0".into(),
-            fini_command: "M2".into(),
-            peck_clearance: 0.5,
-            max_line_len: 1 << 20,
-        }
-    }
-}
+pub use options::{Options, Units};
 
 /// Streaming CL frontend over any buffered reader; memory stays bounded (lines, one
 /// statement, a bounded look at the start, arcs handed out piece by piece).
@@ -207,18 +158,9 @@ impl<R: BufRead> Parser<R> {
                 break;
             }
             let join = !self.lower.is_triplet();
-            let lower = &mut self.lower;
-            let mut quick = |chunk: &[u8], at| lower.plain_gotos(chunk, at, out, want);
-            match self
-                .source
-                .next_statement(&mut self.stmt, join, diags, &mut quick)
-            {
-                source::Read::Statement => {
-                    self.lower.statement(&self.stmt, out, diags);
-                    continue;
-                }
-                source::Read::Taken => continue,
-                source::Read::End => {}
+            if self.source.next_statement(&mut self.stmt, join, diags) {
+                self.lower.statement(&self.stmt, out, diags);
+                continue;
             }
             self.done = true;
             let counts = self.source.counts;

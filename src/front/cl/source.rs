@@ -5,7 +5,7 @@ use std::collections::VecDeque;
 use std::io::BufRead;
 
 use crate::diag::Diagnostic;
-use crate::front::{LineReader, RawLine, decode};
+use crate::front::{LineReader, RawLine};
 use crate::ir::Span;
 
 /// Lines looked at, at most, before the first statement is lowered.
@@ -147,17 +147,6 @@ pub(super) struct Counts {
     pub saw_text: bool,
 }
 
-/// What [`Source::next_statement`] read.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum Read {
-    /// A statement, in the `stmt` given.
-    Statement,
-    /// A line the `quick` reader took.
-    Taken,
-    /// The input ended.
-    End,
-}
-
 /// Reads statements from lines.
 pub(super) struct Source<R> {
     reader: LineReader<R>,
@@ -240,25 +229,14 @@ impl<R: BufRead> Source<R> {
         probe
     }
 
-    /// Reads the next statement into `stmt`. When `join` is false (the triplet format)
-    /// every line is a statement of its own.
-    ///
-    /// When `join` is true and no statement is open, the buffered input is first offered
-    /// to `quick` (its bytes, not yet checked for UTF-8, and the offset and number of the
-    /// line before them), which may lower whole lines at its start directly and return
-    /// the bytes and lines it took: those lines are then taken without being split off,
-    /// checked or copied into `stmt`. Most lines of a 5-axis file are plain `GOTO/`s, and
-    /// building the statement cost more than lowering it. `quick` must take only whole
-    /// lines, each with its `\n`, no longer than the line limit, and must refuse blank
-    /// lines, any line with a `$` (continuation mark or `$$` comment), which only the
-    /// statement handles, and any byte that is not ASCII (the UTF-8 check reports those).
+    /// Reads the next statement into `stmt`; false at the end of the input. When `join`
+    /// is false (the triplet format) every line is a statement of its own.
     pub fn next_statement(
         &mut self,
         stmt: &mut Statement,
         join: bool,
         diags: &mut Vec<Diagnostic>,
-        quick: &mut impl FnMut(&[u8], (u64, u32)) -> (usize, u32),
-    ) -> Read {
+    ) -> bool {
         stmt.clear();
         self.open = false;
         loop {
@@ -281,28 +259,11 @@ impl<R: BufRead> Source<R> {
             } else if self.done {
                 break;
             } else {
-                if join && stmt.segments.is_empty() {
-                    match self.reader.buffered() {
-                        Ok((chunk, at)) => {
-                            let (bytes, lines) = quick(chunk, at);
-                            if lines > 0 {
-                                self.reader.skip_lines(bytes, lines);
-                                self.counts.lines += u64::from(lines);
-                                self.counts.saw_text = true;
-                                return Read::Taken;
-                            }
-                        }
-                        Err(e) => {
-                            self.read_failed(&e, diags);
-                            continue;
-                        }
-                    }
-                }
-                match self.reader.next_line_bytes() {
-                    Ok(Some((bytes, span))) => take_line(
+                match self.reader.next_line() {
+                    Ok(Some((raw, span))) => take_line(
                         &mut self.counts,
                         &mut self.open,
-                        bytes.map_or(RawLine::TooLong, decode),
+                        raw,
                         span,
                         stmt,
                         join,
@@ -320,14 +281,14 @@ impl<R: BufRead> Source<R> {
                 }
             };
             if complete {
-                return Read::Statement;
+                return true;
             }
         }
         if stmt.segments.is_empty() {
-            return Read::End;
+            return false;
         }
         stmt.open_at_end = self.open;
-        Read::Statement
+        true
     }
 }
 
@@ -412,8 +373,8 @@ fn take_line(
     !*open
 }
 
-/// Where a `$$` comment starts in `text`. A byte search for `$`, since most lines have
-/// none and this runs on every line.
+/// Where a `$$` comment starts in `text` (a single `$` at the end of the code is a
+/// continuation mark, not a comment).
 fn comment_start(text: &str) -> Option<usize> {
     let bytes = text.as_bytes();
     memchr::memchr_iter(b'$', bytes).find(|&i| bytes.get(i + 1) == Some(&b'$'))
@@ -442,7 +403,7 @@ impl Shape {
         let numbers = code
             .split_ascii_whitespace()
             .take(4)
-            .filter(|f| f.parse::<f64>().is_ok_and(f64::is_finite))
+            .filter(|f| crate::num::parse_decimal(f).is_some_and(f64::is_finite))
             .count();
         if numbers == 3 && code.split_ascii_whitespace().count() == 3 {
             Shape::Three
@@ -492,9 +453,7 @@ mod tests {
         source.probe(&mut diags);
         let mut stmt = Statement::default();
         let mut out = Vec::new();
-        while source.next_statement(&mut stmt, true, &mut diags, &mut |_, _| (0, 0))
-            == Read::Statement
-        {
+        while source.next_statement(&mut stmt, true, &mut diags) {
             out.push((
                 stmt.code.clone(),
                 stmt.comments.clone(),
@@ -504,76 +463,6 @@ mod tests {
         }
         assert!(diags.is_empty(), "{diags:?}");
         out
-    }
-
-    #[test]
-    fn quick_lines_are_taken_and_counted_outside_statements_only() {
-        let src = "PARTNO/X\nGOTO/1,2,3\nGOTO/9\n\nGOTO/4,$\nGOTO/5\nGOTO/6,7,8\r\nGOTO/0";
-        for capacity in [1, 4, 16, 1 << 10] {
-            let mut source = Source::new(
-                std::io::BufReader::with_capacity(capacity, src.as_bytes()),
-                1 << 20,
-            );
-            let mut diags = Vec::new();
-            // Nothing is probed: every line comes from the reader, where `quick` looks.
-            let mut stmt = Statement::default();
-            let mut taken = Vec::new();
-            let mut statements = Vec::new();
-            loop {
-                // Takes the whole `GOTO/` lines without `$` at the start of the buffer.
-                let mut quick = |chunk: &[u8], (offset, line): (u64, u32)| {
-                    let mut bytes = 0;
-                    let mut lines = 0;
-                    while let Some(rest) = chunk.get(bytes..)
-                        && let Some(end) = rest.iter().position(|&b| b == b'\n')
-                        && rest.starts_with(b"GOTO/")
-                        && !rest[..end].contains(&b'$')
-                    {
-                        let text = String::from_utf8_lossy(&rest[..end]).into_owned();
-                        taken.push((text, offset + bytes as u64, line + lines + 1));
-                        bytes += end + 1;
-                        lines += 1;
-                    }
-                    (bytes, lines)
-                };
-                match source.next_statement(&mut stmt, true, &mut diags, &mut quick) {
-                    Read::Statement => statements.push((stmt.code.clone(), stmt.span.line)),
-                    Read::Taken => {}
-                    Read::End => break,
-                }
-            }
-            // Lines not whole in the buffer come as statements; the line after an open `$`
-            // belongs to its statement, not to `quick`.
-            let mut all: Vec<(String, u32)> = statements.clone();
-            all.extend(taken.iter().map(|(t, _, l)| (t.trim_end().to_string(), *l)));
-            all.sort_by_key(|(_, l)| *l);
-            assert_eq!(
-                all,
-                [
-                    ("PARTNO/X", 1),
-                    ("GOTO/1,2,3", 2),
-                    ("GOTO/9", 3),
-                    ("GOTO/4, GOTO/5", 5),
-                    ("GOTO/6,7,8", 7),
-                    ("GOTO/0", 8),
-                ]
-                .map(|(t, l)| (t.to_string(), l))
-            );
-            assert!(statements.contains(&("GOTO/4, GOTO/5".to_string(), 5)));
-            assert!(
-                statements.contains(&("GOTO/0".to_string(), 8)),
-                "no newline: a statement"
-            );
-            for (text, offset, _) in &taken {
-                assert!(src[*offset as usize..].starts_with(text.as_str()));
-            }
-            if capacity >= 1024 {
-                assert_eq!(taken.len(), 3);
-            }
-            assert_eq!(source.counts.lines, 8);
-            assert_eq!(source.bytes_read(), src.len() as u64);
-            assert!(source.counts.saw_text && diags.is_empty());
-        }
     }
 
     #[test]

@@ -401,41 +401,8 @@ impl Lowerer {
             b"SP" => self.select_pen(cmd, &nums, out, diags),
             b"CI" => self.circle(cmd, &nums, out, diags),
             b"AA" | b"AR" => self.arc(cmd, &nums, out, diags),
-            b"IP" => {
-                match nums.len() {
-                    0 => self.ip = None,
-                    2 => match self.ip {
-                        Some([x1, y1, x2, y2]) => {
-                            self.ip = Some([nums[0], nums[1], nums[0] + x2 - x1, nums[1] + y2 - y1])
-                        }
-                        None => self.ip = Some([nums[0], nums[1], f64::NAN, f64::NAN]),
-                    },
-                    4 => self.ip = Some([nums[0], nums[1], nums[2], nums[3]]),
-                    n => {
-                        return diags.push(
-                            cmd.diag(Diagnostic::error(
-                                "hpgl::parameters",
-                                format!("IP takes 0, 2 or 4 numbers, not {n}"),
-                            ))
-                            .with_help("write `IP p1x,p1y,p2x,p2y;`"),
-                        );
-                    }
-                }
-                self.rescale(cmd, diags);
-            }
-            b"SC" => {
-                if !matches!(nums.len(), 0 | 4..=7) {
-                    return diags.push(
-                        cmd.diag(Diagnostic::error(
-                            "hpgl::parameters",
-                            format!("SC takes 0 or 4 to 7 numbers, not {}", nums.len()),
-                        ))
-                        .with_help("write `SC xmin,xmax,ymin,ymax;`"),
-                    );
-                }
-                self.sc = (!nums.is_empty()).then_some(nums);
-                self.rescale(cmd, diags);
-            }
+            b"IP" => self.input_points(cmd, &nums, diags),
+            b"SC" => self.scale_points(cmd, nums, diags),
             b"LT" => {
                 if !nums.is_empty() {
                     self.warn_once(
@@ -450,43 +417,92 @@ impl Lowerer {
             }
             b"VS" => {}
             b"PM" => self.polygon_mode(cmd, &nums, out),
-            b"EP" | b"FP" => {
-                self.warn_once(
-                    cmd,
-                    diags,
-                    Diagnostic::warning(
-                        "hpgl::polygon",
-                        format!(
-                            "{}: polygons are cut along their edges as they are defined, once; edge and fill commands add nothing",
-                            cmd.name()
-                        ),
-                    ),
-                );
-            }
-            _ => {
-                if !NO_GEOMETRY.contains(&cmd.mnemonic) {
-                    self.warn_once(
-                    cmd,
-                    diags,
-                    Diagnostic::warning(
-                        "hpgl::ignored",
-                        format!("{} does not move the pen; passed on as a comment", cmd.name()),
-                    )
-                    .with_help("the frontend cuts IN SP PU PD PA PR CI AA AR; IP SC LT VS PM EP FP are understood"),
-                );
+            b"EP" | b"FP" => self.polygon_edges(cmd, diags),
+            _ => self.pass_on(cmd, out, diags),
+        }
+    }
+
+    /// `EP`, `FP`: nothing to cut beyond the polygon's edges (one warning).
+    fn polygon_edges(&mut self, cmd: &Command, diags: &mut Vec<Diagnostic>) {
+        self.warn_once(
+            cmd,
+            diags,
+            Diagnostic::warning(
+                "hpgl::polygon",
+                format!(
+                    "{}: polygons are cut along their edges as they are defined, once; edge and fill commands add nothing",
+                    cmd.name()
+                ),
+            ),
+        );
+    }
+
+    /// `IP`: the scaling points P1 and P2, in plotter units.
+    fn input_points(&mut self, cmd: &Command, nums: &[f64], diags: &mut Vec<Diagnostic>) {
+        match nums.len() {
+            0 => self.ip = None,
+            2 => match self.ip {
+                Some([x1, y1, x2, y2]) => {
+                    self.ip = Some([nums[0], nums[1], nums[0] + x2 - x1, nums[1] + y2 - y1])
                 }
-                let mut text = String::from_utf8_lossy(&cmd.text).into_owned();
-                if text.len() > 200 {
-                    let mut end = 200;
-                    while !text.is_char_boundary(end) {
-                        end -= 1;
-                    }
-                    text.truncate(end);
-                    text.push_str("...");
-                }
-                out.push(comment_block(span, format!("HPGL {text}")));
+                None => self.ip = Some([nums[0], nums[1], f64::NAN, f64::NAN]),
+            },
+            4 => self.ip = Some([nums[0], nums[1], nums[2], nums[3]]),
+            n => {
+                diags.push(
+                    cmd.diag(Diagnostic::error(
+                        "hpgl::parameters",
+                        format!("IP takes 0, 2 or 4 numbers, not {n}"),
+                    ))
+                    .with_help("write `IP p1x,p1y,p2x,p2y;`"),
+                );
+                return;
             }
         }
+        self.rescale(cmd, diags);
+    }
+
+    /// `SC`: the user units the scaling points stand for.
+    fn scale_points(&mut self, cmd: &Command, nums: Vec<f64>, diags: &mut Vec<Diagnostic>) {
+        if !matches!(nums.len(), 0 | 4..=7) {
+            diags.push(
+                cmd.diag(Diagnostic::error(
+                    "hpgl::parameters",
+                    format!("SC takes 0 or 4 to 7 numbers, not {}", nums.len()),
+                ))
+                .with_help("write `SC xmin,xmax,ymin,ymax;`"),
+            );
+            return;
+        }
+        self.sc = (!nums.is_empty()).then_some(nums);
+        self.rescale(cmd, diags);
+    }
+
+    /// A command that does not move the pen: a comment (with a warning unless it only
+    /// sets up the plotter).
+    fn pass_on(&mut self, cmd: &Command, out: &mut Vec<Block>, diags: &mut Vec<Diagnostic>) {
+        let span = cmd.span;
+        if !NO_GEOMETRY.contains(&cmd.mnemonic) {
+            self.warn_once(
+            cmd,
+            diags,
+            Diagnostic::warning(
+                "hpgl::ignored",
+                format!("{} does not move the pen; passed on as a comment", cmd.name()),
+            )
+            .with_help("the frontend cuts IN SP PU PD PA PR CI AA AR; IP SC LT VS PM EP FP are understood"),
+        );
+        }
+        let mut text = String::from_utf8_lossy(&cmd.text).into_owned();
+        if text.len() > 200 {
+            let mut end = 200;
+            while !text.is_char_boundary(end) {
+                end -= 1;
+            }
+            text.truncate(end);
+            text.push_str("...");
+        }
+        out.push(comment_block(span, format!("HPGL {text}")));
     }
 
     /// Pairs of coordinates of `PA`, `PR`, `PU`, `PD`, in the current mode.

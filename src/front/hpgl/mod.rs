@@ -118,40 +118,58 @@ impl Default for Options {
 }
 
 impl Options {
-    /// Checks the values: positive scale and feeds, depths and heights in order.
-    pub fn check(&self) -> Result<(), String> {
+    /// Checks the values: positive scale and feeds, depths and heights in order. The
+    /// error is `hpgl::options`, reported before anything is read.
+    ///
+    /// ```
+    /// use ncpost::front::hpgl::Options;
+    /// assert!(Options::default().check().is_ok());
+    /// let bad = Options { units_per_mm: 0.0, ..Options::default() };
+    /// assert_eq!(bad.check().unwrap_err().code, "hpgl::options");
+    /// ```
+    pub fn check(&self) -> Result<(), Diagnostic> {
+        self.problem().map_or(Ok(()), |e| {
+            Err(
+                Diagnostic::error("hpgl::options", format!("HPGL frontend options: {e}"))
+                    .with_help("fix [hpgl_input] in the preset"),
+            )
+        })
+    }
+
+    /// What is wrong with the values, if anything.
+    fn problem(&self) -> Option<&'static str> {
         let pos = |v: f64| v.is_finite() && v > 0.0;
         if !pos(self.units_per_mm) {
-            return Err("units_per_mm must be a number > 0".into());
+            return Some("units_per_mm must be a number > 0");
         }
         if !pos(self.plunge_feed) || !pos(self.cut_feed) {
-            return Err("plunge_feed and cut_feed must be numbers > 0".into());
+            return Some("plunge_feed and cut_feed must be numbers > 0");
         }
         if !(self.cut_depth.is_finite() && self.drill_depth.is_finite()) {
-            return Err("cut_depth and drill_depth must be numbers".into());
+            return Some("cut_depth and drill_depth must be numbers");
         }
         if !(self.safe_z.is_finite() && self.approach_z.is_finite()) {
-            return Err("safe_z and approach_z must be numbers".into());
+            return Some("safe_z and approach_z must be numbers");
         }
         if self.approach_z > self.safe_z {
-            return Err("approach_z must not be above safe_z".into());
+            return Some("approach_z must not be above safe_z");
         }
         if -self.cut_depth >= self.approach_z || -self.drill_depth >= self.approach_z {
-            return Err(
-                "the cut (Z = -cut_depth) and hole (Z = -drill_depth) bottoms must be below approach_z"
-                    .into(),
+            return Some(
+                "the cut (Z = -cut_depth) and hole (Z = -drill_depth) bottoms must be below \
+                 approach_z",
             );
         }
         if !(self.spindle_rpm.is_finite() && self.spindle_rpm >= 0.0) {
-            return Err("spindle_rpm must be a number >= 0".into());
+            return Some("spindle_rpm must be a number >= 0");
         }
         if self.tool_change.contains('\n') || self.end_command.contains('\n') {
-            return Err("tool_change and end_command are one line each".into());
+            return Some("tool_change and end_command are one line each");
         }
         if self.max_command_len < 16 {
-            return Err("max_command_len must be at least 16".into());
+            return Some("max_command_len must be at least 16");
         }
-        Ok(())
+        None
     }
 }
 
@@ -175,7 +193,7 @@ pub struct Parser<R> {
     reader: reader::Reader<R>,
     lower: lower::Lowerer,
     pending: VecDeque<Block>,
-    options_error: Option<String>,
+    options_error: Option<Diagnostic>,
     started: bool,
     done: bool,
 }
@@ -198,10 +216,7 @@ impl<R: BufRead> Parser<R> {
         if !self.started {
             self.started = true;
             if let Some(e) = self.options_error.take() {
-                diags.push(
-                    Diagnostic::error("hpgl::options", format!("HPGL frontend options: {e}"))
-                        .with_help("fix [hpgl_input] in the preset"),
-                );
+                diags.push(e);
                 self.done = true;
                 return;
             }

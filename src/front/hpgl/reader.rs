@@ -250,28 +250,7 @@ impl<R: BufRead> Reader<R> {
             }
             if !self.in_garbage {
                 self.in_garbage = true;
-                let shown = if b.is_ascii_graphic() {
-                    format!("`{}`", b as char)
-                } else {
-                    format!("byte 0x{b:02X}")
-                };
-                let mut d = Diagnostic::error(
-                    "hpgl::unexpected",
-                    format!("{shown} where a command (two letters) should start"),
-                )
-                .with_help("HPGL commands are two letters and parameters, such as `PA100,200;`");
-                d.location = Some(Box::new(Location {
-                    line,
-                    column,
-                    len: 1,
-                    source_line: if b.is_ascii_graphic() {
-                        (b as char).to_string()
-                    } else {
-                        "\u{fffd}".to_string()
-                    },
-                    cut: column - 1,
-                }));
-                diags.push(d);
+                diags.push(unexpected(b, line, column));
             }
         };
         let mut cmd = Command {
@@ -321,6 +300,16 @@ impl<R: BufRead> Reader<R> {
             Ok(t) => t,
             Err(e) => return Some(self.io_error(e, diags)),
         };
+        self.finish(cmd, too_long, diags)
+    }
+
+    /// The command read: its span, the error when it was too long, its parameters.
+    fn finish(
+        &mut self,
+        mut cmd: Command,
+        too_long: bool,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Option<Option<Command>> {
         cmd.span.len = (self.offset - cmd.span.offset).min(u32::MAX as u64) as u32;
         if too_long {
             diags.push(
@@ -439,6 +428,32 @@ impl<R: BufRead> Reader<R> {
     }
 }
 
+/// The error for a byte `b` at `line`, `column` where a command should start.
+fn unexpected(b: u8, line: u32, column: u32) -> Diagnostic {
+    let shown = if b.is_ascii_graphic() {
+        format!("`{}`", b as char)
+    } else {
+        format!("byte 0x{b:02X}")
+    };
+    let mut d = Diagnostic::error(
+        "hpgl::unexpected",
+        format!("{shown} where a command (two letters) should start"),
+    )
+    .with_help("HPGL commands are two letters and parameters, such as `PA100,200;`");
+    d.location = Some(Box::new(Location {
+        line,
+        column,
+        len: 1,
+        source_line: if b.is_ascii_graphic() {
+            (b as char).to_string()
+        } else {
+            "\u{fffd}".to_string()
+        },
+        cut: column - 1,
+    }));
+    d
+}
+
 /// Splits the text after the mnemonic into numbers and strings. `Err` gives the byte
 /// range, message and help of the first bad parameter.
 fn parse_params(
@@ -489,41 +504,24 @@ fn parse_params(
             comma = false;
             continue;
         }
-        // A number: sign, digits, point, digits.
-        let mut j = i;
-        if matches!(text[j], b'+' | b'-') {
-            j += 1;
-        }
-        let digits_start = j;
-        while j < n && (text[j].is_ascii_digit() || text[j] == b'.') {
-            j += 1;
-        }
-        // The token runs to the next separator, for the message.
-        let mut end = j;
+        // A number: sign, digits, point, digits; the token runs to the next separator,
+        // for the message.
+        let mut end = i;
         while end < n && !(text[end] == b',' || text[end].is_ascii_whitespace()) {
             end += 1;
         }
-        let token = &text[start..end];
-        let shown = String::from_utf8_lossy(token);
-        let digits = &text[digits_start..j];
-        let points = digits.iter().filter(|&&c| c == b'.').count();
-        if end != j || digits.is_empty() || points > 1 || digits == b"." {
-            return Err((
-                start,
-                end,
-                format!("`{shown}` is not a number"),
-                "parameters are numbers such as `120`, `-3.5` or `+.25`, separated by commas",
-            ));
-        }
-        let s = std::str::from_utf8(token).unwrap_or("");
-        let v: f64 = s.parse().map_err(|_| {
-            (
-                start,
-                end,
-                format!("`{shown}` is not a number"),
-                "parameters are numbers such as `120` or `-3.5`",
-            )
-        })?;
+        let shown = String::from_utf8_lossy(&text[start..end]);
+        let v = match crate::num::scan_decimal(text, start) {
+            Some((v, e)) if e == end => v,
+            _ => {
+                return Err((
+                    start,
+                    end,
+                    format!("`{shown}` is not a number"),
+                    "parameters are numbers such as `120`, `-3.5` or `+.25`, separated by commas",
+                ));
+            }
+        };
         if !v.is_finite() {
             return Err((
                 start,
