@@ -373,7 +373,7 @@ pub struct ExtrudeRate {
 impl ExtrudeRate {
     /// The pass with `options` in `ctx` (screw settings from `[polar.screw]`, timing from
     /// the controller).
-    pub fn new(options: Options, ctx: &Context<'_>) -> Result<ExtrudeRate, String> {
+    pub fn new(options: Options, ctx: &Context<'_>) -> Result<ExtrudeRate, Diagnostic> {
         let screw = ctx.polar.map(|p| p.screw.clone()).unwrap_or_default();
         let e_per_rev = options.e_per_rev.unwrap_or(screw.e_per_rev);
         let max_rpm = options.max_rpm.unwrap_or(screw.max_rpm);
@@ -381,19 +381,25 @@ impl ExtrudeRate {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(format!("{what} must be a positive number (got {v})"))
+                Err(Diagnostic::settings(format!(
+                    "{what} must be a positive number (got {v})"
+                )))
             }
         };
         positive(e_per_rev, "e_per_rev")?;
         positive(max_rpm, "max_rpm")?;
         if !(options.threshold.is_finite() && (0.0..1.0).contains(&options.threshold)) {
-            return Err("threshold must be a number from 0 to below 1".into());
+            return Err(Diagnostic::settings(
+                "threshold must be a number from 0 to below 1",
+            ));
         }
         if options.rule == Rule::Seed && options.mode != Mode::ScrewRpm {
-            return Err("rule = \"seed\" sets screw speeds: it needs mode = \"screw-rpm\"".into());
+            return Err(Diagnostic::settings(
+                "rule = \"seed\" sets screw speeds: it needs mode = \"screw-rpm\"",
+            ));
         }
         if options.rpm_decimals > 6 {
-            return Err("rpm_decimals must be at most 6".into());
+            return Err(Diagnostic::settings("rpm_decimals must be at most 6"));
         }
         let gamma = options
             .gamma
@@ -406,21 +412,25 @@ impl ExtrudeRate {
             .clone()
             .unwrap_or_else(|| screw.rpm_command.clone());
         if !command.contains("{rpm}") {
-            return Err(format!("command `{command}` must contain {{rpm}}"));
+            return Err(Diagnostic::settings(format!(
+                "command `{command}` must contain {{rpm}}"
+            )));
         }
         for c in [Some(&command), options.stop_command.as_ref()]
             .into_iter()
             .flatten()
         {
             if c.trim().is_empty() || c.contains('\n') {
-                return Err("commands must be one non-empty line".into());
+                return Err(Diagnostic::settings("commands must be one non-empty line"));
             }
         }
         let polar_axes = match (options.frame, ctx.polar) {
             (Frame::Cartesian, _) | (Frame::Auto, None) => None,
             (Frame::Auto | Frame::Polar, Some(p)) => Some((p.r_axis, p.theta_axis)),
             (Frame::Polar, None) => {
-                return Err("frame = \"polar\" needs a preset with a [polar] machine".into());
+                return Err(Diagnostic::settings(
+                    "frame = \"polar\" needs a preset with a [polar] machine",
+                ));
             }
         };
         let cap_rate = match (polar_axes, ctx.polar) {
@@ -430,7 +440,8 @@ impl ExtrudeRate {
                 .min(1.2408 * p.alpha_max.to_radians().sqrt()),
             _ => 0.0,
         };
-        let model = Model::from_context(ctx, options.timing).with_rapid_feed(options.rapid_feed);
+        let model = Model::for_machines(ctx.polar, ctx.machine, ctx.timing, options.timing)
+            .with_rapid_feed(options.rapid_feed);
         Ok(ExtrudeRate {
             model: model.clone(),
             decimals: ctx.decimals,

@@ -140,15 +140,17 @@ impl Default for Options {
 }
 
 impl Options {
-    fn check(&self) -> Result<(), String> {
+    fn check(&self) -> Result<(), Diagnostic> {
         if !(self.tolerance.is_finite() && self.tolerance > 0.0) {
-            return Err("tolerance must be a positive number of millimetres".into());
+            return Err(Diagnostic::settings(
+                "tolerance must be a positive number of millimetres",
+            ));
         }
         if !self.center.iter().all(|c| c.is_finite()) {
-            return Err("center must be two finite numbers".into());
+            return Err(Diagnostic::settings("center must be two finite numbers"));
         }
         if self.max_depth > 40 {
-            return Err("max_depth must be at most 40".into());
+            return Err(Diagnostic::settings("max_depth must be at most 40"));
         }
         Ok(())
     }
@@ -164,7 +166,9 @@ pub const INFO: PassInfo = PassInfo {
             (Some(p), _) => p.clone(),
             (None, Kinematics::Controller) => Polar::default(),
             (None, Kinematics::Post) => {
-                return Err("pass `polar-ik` needs a polar machine: use a preset with a [polar] table (for example --preset polar-printer)".into());
+                return Err(Diagnostic::settings(
+                    "pass `polar-ik` needs a polar machine: use a preset with a [polar] table (for example --preset polar-printer)",
+                ));
             }
         };
         Ok(Box::new(PolarIk::new(polar, options)?))
@@ -585,7 +589,7 @@ pub struct PolarIk {
 
 impl PolarIk {
     /// The pass for `polar` with `options`.
-    pub fn new(polar: Polar, options: Options) -> Result<PolarIk, String> {
+    pub fn new(polar: Polar, options: Options) -> Result<PolarIk, Diagnostic> {
         options.check()?;
         let mut checked = polar.clone();
         if let Some(origin) = options.origin {

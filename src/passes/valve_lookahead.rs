@@ -374,7 +374,7 @@ pub struct ValveLookahead {
 
 impl ValveLookahead {
     /// The pass with `options` in `ctx` (valve settings from `[polar.valve]`).
-    pub fn new(options: Options, ctx: &Context<'_>) -> Result<ValveLookahead, String> {
+    pub fn new(options: Options, ctx: &Context<'_>) -> Result<ValveLookahead, Diagnostic> {
         let valve = ctx.polar.map(|p| p.valve.clone()).unwrap_or_default();
         let open_delay = options.open_delay_s.unwrap_or(valve.open_delay_s);
         let close_delay = options.close_delay_s.unwrap_or(valve.close_delay_s);
@@ -384,25 +384,30 @@ impl ValveLookahead {
             (options.keep_open_gap_s, "keep_open_gap_s"),
         ] {
             if !(v.is_finite() && (0.0..=3600.0).contains(&v)) {
-                return Err(format!(
+                return Err(Diagnostic::settings(format!(
                     "{what} must be a number of seconds from 0 to 3600 (got {v})"
-                ));
+                )));
             }
         }
         let open_command = options.open_command.clone().unwrap_or(valve.open_command);
         let close_command = options.close_command.clone().unwrap_or(valve.close_command);
         for c in [&open_command, &close_command] {
             if c.trim().is_empty() || c.contains('\n') {
-                return Err("open_command and close_command must be one non-empty line".into());
+                return Err(Diagnostic::settings(
+                    "open_command and close_command must be one non-empty line",
+                ));
             }
         }
         if options.max_lookahead < 16 {
-            return Err("max_lookahead must be at least 16 blocks".into());
+            return Err(Diagnostic::settings(
+                "max_lookahead must be at least 16 blocks",
+            ));
         }
         if !(options.rapid_feed.is_finite() && options.rapid_feed > 0.0) {
-            return Err("rapid_feed must be a positive number".into());
+            return Err(Diagnostic::settings("rapid_feed must be a positive number"));
         }
-        let model = Model::from_context(ctx, options.timing).with_rapid_feed(options.rapid_feed);
+        let model = Model::for_machines(ctx.polar, ctx.machine, ctx.timing, options.timing)
+            .with_rapid_feed(options.rapid_feed);
         let window = match model.timing {
             Timing::ConstantVelocity => 0,
             Timing::Trapezoid => model.lookahead,
