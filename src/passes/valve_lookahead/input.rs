@@ -8,28 +8,8 @@ use crate::motion::{self, Segment};
 use crate::num::print::printed;
 
 use super::window::{Item, Kind, MoveData, cv_duration};
-use super::{E_EPS, HOLD_MARGIN_S, Output, Track, ValveLookahead};
-
-impl Track {
-    /// The material a move with E change `de` extrudes: retractions (negative `de`)
-    /// are owed back first, and only E beyond them is material.
-    fn material(&mut self, de: f64) -> f64 {
-        if de < 0.0 {
-            self.pending -= de;
-            return 0.0;
-        }
-        let restored = de.min(self.pending);
-        self.pending -= restored;
-        if self.pending < E_EPS {
-            self.pending = 0.0;
-        }
-        if de - restored < E_EPS {
-            0.0
-        } else {
-            de - restored
-        }
-    }
-}
+use super::{HOLD_MARGIN_S, Output, ValveLookahead};
+use crate::passes::extrude_rate::material;
 
 impl ValveLookahead {
     /// The joints as the controller reads them: each known axis rounded to the backend's
@@ -144,7 +124,7 @@ impl ValveLookahead {
         let p_from = self.printed(&from);
         let p_to = self.printed(&next);
         self.track.pos = next;
-        let material = self.track.material(de);
+        let material = material(&mut self.track.pending, de);
         if e_only && self.track.e_untimed {
             let kind = if material > 0.0 {
                 Kind::Barrier

@@ -210,8 +210,6 @@ const WARN_TOL: f64 = 1e-3;
 const SETTLE_ROUNDS: usize = 12;
 /// Extra seconds of motion the window holds.
 const HOLD_MARGIN_S: f64 = 0.05;
-/// E amounts below this are float dust, not material.
-const E_EPS: f64 = 1e-9;
 
 /// A warning counted over the run: the first one is reported, then a count.
 #[derive(Default)]
