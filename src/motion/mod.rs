@@ -342,8 +342,7 @@ pub fn rule_distance(rule: FeedRule, delta: &[f64; AXIS_COUNT], arc: Option<f64>
     match rule {
         FeedRule::Euclidean => {
             let rest = norm(&[3, 4, 5, 6, 7, 8]);
-            // `hypot(x, 0)` is `|x|` exactly: skip the libm call when no rotary moves.
-            let d = if rest == 0.0 { xyz } else { xyz.hypot(rest) };
+            let d = xyz.hypot(rest);
             if d > 0.0 { d } else { e }
         }
         FeedRule::Nist | FeedRule::InverseTime => {
@@ -723,8 +722,6 @@ pub struct Planner<T> {
     time: f64,
     /// Exit speed and segment of the last move handed out, while the machine is moving.
     last: Option<(Segment, f64)>,
-    /// The queued moves, reused by the backward pass.
-    scratch: Vec<Segment>,
 }
 
 impl<T> Planner<T> {
@@ -737,7 +734,6 @@ impl<T> Planner<T> {
             ready: VecDeque::new(),
             time: 0.0,
             last: None,
-            scratch: Vec::new(),
         }
     }
 
@@ -821,15 +817,12 @@ impl<T> Planner<T> {
     /// Fixes the exit speed of the first queued move and hands it (and the items before
     /// it) out.
     fn release_first_move(&mut self) {
-        let mut moving = std::mem::take(&mut self.scratch);
-        moving.clear();
-        moving.extend(
-            self.queue
-                .iter()
-                .filter_map(|p| p.seg.filter(|s| s.moves())),
-        );
+        let moving: Vec<Segment> = self
+            .queue
+            .iter()
+            .filter_map(|p| p.seg.filter(|s| s.moves()))
+            .collect();
         let Some(first) = moving.first().copied() else {
-            self.scratch = moving;
             return;
         };
         // Backward pass: the fastest exit of each move from which the machine can still
@@ -849,7 +842,6 @@ impl<T> Planner<T> {
         };
         // Forward pass for the first move: no faster than it can reach from its entry.
         let exit = exit.min((entry * entry + 2.0 * first.accel * first.length).sqrt());
-        self.scratch = moving;
         while let Some(p) = self.queue.pop_front() {
             let is_first = p.seg.is_some_and(|s| s.moves());
             self.hand_out(p.seg, p.dwell, p.payload, entry, exit);
@@ -867,8 +859,8 @@ impl<T> Planner<T> {
                 s.accel = f64::INFINITY;
             }
             let p = Profile::new(&s, v0, v1);
-            // Only the trapezoid planner joins a move to the last one (a 100-byte copy
-            // per move otherwise).
+            // Junction speeds are the trapezoid planner's: under constant velocity every
+            // move starts on its own.
             if !constant && s.moves() {
                 self.last = Some((s, p.v_exit));
             }

@@ -412,22 +412,7 @@ impl ExtrudeRate {
                 return Err(Diagnostic::settings("commands must be one non-empty line"));
             }
         }
-        let polar_axes = match (options.frame, ctx.polar) {
-            (Frame::Cartesian, _) | (Frame::Auto, None) => None,
-            (Frame::Auto | Frame::Polar, Some(p)) => Some((p.r_axis, p.theta_axis)),
-            (Frame::Polar, None) => {
-                return Err(Diagnostic::settings(
-                    "frame = \"polar\" needs a preset with a [polar] machine",
-                ));
-            }
-        };
-        let cap_rate = match (polar_axes, ctx.polar) {
-            (Some(_), Some(p)) => p
-                .omega_max
-                .to_radians()
-                .min(1.2408 * p.alpha_max.to_radians().sqrt()),
-            _ => 0.0,
-        };
+        let (polar_axes, cap_rate) = polar_frame(&options, ctx)?;
         let model = Model::for_machines(ctx.polar, ctx.machine, ctx.timing, options.timing)
             .with_rapid_feed(options.rapid_feed);
         Ok(ExtrudeRate {
@@ -462,6 +447,31 @@ impl ExtrudeRate {
             options,
         })
     }
+}
+
+/// The `[polar]` axes the tool point is read from under `frame` (`None`: X, Y), and the
+/// near-centre cap rate (1/s) of the polar table, 0 without one.
+fn polar_frame(
+    options: &Options,
+    ctx: &Context<'_>,
+) -> Result<(Option<(Axis, Axis)>, f64), Diagnostic> {
+    let polar_axes = match (options.frame, ctx.polar) {
+        (Frame::Cartesian, _) | (Frame::Auto, None) => None,
+        (Frame::Auto | Frame::Polar, Some(p)) => Some((p.r_axis, p.theta_axis)),
+        (Frame::Polar, None) => {
+            return Err(Diagnostic::settings(
+                "frame = \"polar\" needs a preset with a [polar] machine",
+            ));
+        }
+    };
+    let cap_rate = match (polar_axes, ctx.polar) {
+        (Some(_), Some(p)) => p
+            .omega_max
+            .to_radians()
+            .min(1.2408 * p.alpha_max.to_radians().sqrt()),
+        _ => 0.0,
+    };
+    Ok((polar_axes, cap_rate))
 }
 
 /// The material (E units) a move with E change `de` extrudes, with `pending` the
