@@ -309,6 +309,16 @@ impl PolarIk {
         }
     }
 
+    /// A line (homing, a macro...) makes `clobbers` unknown: the position forgets them;
+    /// returns them as the output names them (r and θ for X and Y).
+    fn clobbered(&mut self, clobbers: AxisSet) -> AxisSet {
+        self.pos.forget(clobbers);
+        if self.xy(&self.pos).is_none() {
+            self.node = None;
+        }
+        self.map_axes(clobbers)
+    }
+
     /// Warns when `p` is outside the arm's reach.
     fn check_reach(&self, p: &PolarPoint, span: Span, out: &mut Output<'_>) {
         let eps = 1e-9;
@@ -372,22 +382,14 @@ impl PolarIk {
                 });
             }
             BlockKind::Command(mut c) => {
-                self.pos.forget(c.clobbers);
-                if self.xy(&self.pos).is_none() {
-                    self.node = None;
-                }
-                c.clobbers = self.map_axes(c.clobbers);
+                c.clobbers = self.clobbered(c.clobbers);
                 out.push(Block {
                     kind: BlockKind::Command(c),
                     ..block
                 });
             }
             BlockKind::Verbatim(mut v) => {
-                self.pos.forget(v.clobbers);
-                if self.xy(&self.pos).is_none() {
-                    self.node = None;
-                }
-                v.clobbers = self.map_axes(v.clobbers);
+                v.clobbers = self.clobbered(v.clobbers);
                 out.push(Block {
                     kind: BlockKind::Verbatim(v),
                     ..block
