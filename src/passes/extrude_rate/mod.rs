@@ -116,15 +116,13 @@
 mod e_axis;
 mod screw;
 
-use std::collections::VecDeque;
-
 use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
 use crate::back::Decimals;
 use crate::diag::Diagnostic;
 use crate::ir::{AXIS_COUNT, Axis, Block, Joints, Span};
-use crate::motion::{self, Model, Planner, Segment, Timed, Timing};
+use crate::motion::{self, Model, Planner, Timing};
 
 /// What the pass produces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -264,44 +262,10 @@ enum Role {
     Prime { material: f64 },
 }
 
+/// A block queued in the controller's planner, with what it means for the screw.
 struct Item {
     block: Block,
     role: Role,
-}
-
-/// The controller's planner with the blocks beside it: the planner times the roles, the
-/// blocks wait here in the same order (it hands items back in the order they came).
-struct Queue {
-    planner: Planner<Role>,
-    blocks: VecDeque<Block>,
-}
-
-impl Queue {
-    fn push_move(&mut self, seg: Segment, item: Item) {
-        self.blocks.push_back(item.block);
-        self.planner.push_move(seg, item.role);
-    }
-
-    fn push_other(&mut self, item: Item) {
-        self.blocks.push_back(item.block);
-        self.planner.push_other(item.role);
-    }
-
-    fn push_stop(&mut self, dwell: f64, item: Item) {
-        self.blocks.push_back(item.block);
-        self.planner.push_stop(dwell, item.role);
-    }
-
-    fn finish(&mut self) {
-        self.planner.finish();
-    }
-
-    /// The next item whose timing is final, and its block.
-    fn pop(&mut self) -> Option<(Timed<Role>, Block)> {
-        let timed = self.planner.pop()?;
-        let block = self.blocks.pop_front()?;
-        Some((timed, block))
-    }
 }
 
 /// A warning counted over the run: the first place and how often.
@@ -347,7 +311,8 @@ pub struct ExtrudeRate {
     carry: f64,
     /// The printed rate in force (`None`: not known yet).
     held: Option<f64>,
-    queue: Queue,
+    /// The controller's planner, timing the queued blocks.
+    queue: Planner<Item>,
     last_span: Span,
     over_max: Tally,
     under_min: Tally,
@@ -433,10 +398,7 @@ impl ExtrudeRate {
             pending: 0.0,
             carry: 0.0,
             held: None,
-            queue: Queue {
-                planner: Planner::new(model),
-                blocks: VecDeque::new(),
-            },
+            queue: Planner::new(model),
             last_span: Span::default(),
             over_max: Tally::default(),
             under_min: Tally::default(),

@@ -457,14 +457,15 @@ impl ExtrudeRate {
 
     /// Emits the planned items, with the screw commands before them.
     pub(super) fn drain(&mut self, out: &mut Output<'_>) {
-        while let Some((t, block)) = self.queue.pop() {
-            self.emit(t, block, out);
+        while let Some(t) = self.queue.pop() {
+            self.emit(t, out);
         }
     }
 
-    fn emit(&mut self, t: Timed<Role>, block: Block, out: &mut Output<'_>) {
+    /// Puts out a planned block, after the screw command its time asks for.
+    fn emit(&mut self, t: Timed<Item>, out: &mut Output<'_>) {
         let seconds = t.duration();
-        let role = t.payload;
+        let Item { block, role } = t.payload;
         let span = block.span;
         match role {
             Role::Pass => {}
