@@ -439,7 +439,7 @@ fn stats(args: &StatsArgs) -> ExitCode {
         options.rapid_feed = f;
     }
     let mut collector = passes::stats::Stats::from_context(&options, &ctx);
-    if let Some((r, theta)) = ncpost::motion::polar_axes(preset) {
+    if let Some((r, theta)) = ncpost::plot::polar_axes(preset) {
         collector = collector.with_polar(r, theta);
     }
     let summary = pipeline.run_into(source, input, &mut collector, &mut |d| printer.print(d));

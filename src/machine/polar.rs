@@ -13,6 +13,7 @@
 use serde::{Deserialize, Serialize};
 
 use super::Controller;
+use crate::diag::Diagnostic;
 use crate::ir::Axis;
 
 /// What the motion does where the path meets the table centre (r = 0).
@@ -134,21 +135,23 @@ impl Default for Polar {
     }
 }
 
-fn positive(value: f64, what: &str) -> Result<(), String> {
+fn positive(value: f64, what: &str) -> Result<(), Diagnostic> {
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
-        Err(format!(
+        Err(Diagnostic::settings(format!(
             "polar: {what} must be a positive number (got {value})"
-        ))
+        )))
     }
 }
 
-fn non_negative(value: f64, what: &str) -> Result<(), String> {
+fn non_negative(value: f64, what: &str) -> Result<(), Diagnostic> {
     if value.is_finite() && value >= 0.0 {
         Ok(())
     } else {
-        Err(format!("polar: {what} must be zero or more (got {value})"))
+        Err(Diagnostic::settings(format!(
+            "polar: {what} must be zero or more (got {value})"
+        )))
     }
 }
 
@@ -174,43 +177,50 @@ impl Polar {
     /// p.theta_axis = p.r_axis;
     /// assert!(p.check().is_err());
     /// ```
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), Diagnostic> {
         if self.r_axis == self.theta_axis {
-            return Err("polar: r_axis and theta_axis must be different axes".into());
+            return Err(Diagnostic::settings(
+                "polar: r_axis and theta_axis must be different axes",
+            ));
         }
         if self.r_axis == Axis::E || self.theta_axis == Axis::E {
-            return Err("polar: E is the extruder; r and θ need other axis letters".into());
+            return Err(Diagnostic::settings(
+                "polar: E is the extruder; r and θ need other axis letters",
+            ));
         }
         if self.r_axis.is_rotary() {
-            return Err(format!(
+            return Err(Diagnostic::settings(format!(
                 "polar: r is a length; {} is a rotary axis letter",
                 self.r_axis.letter()
-            ));
+            )));
         }
         positive(self.r_max, "r_max")?;
         positive(self.omega_max, "omega_max")?;
         positive(self.alpha_max, "alpha_max")?;
         if self.origin_policy() == OriginPolicy::SignedRadius && !self.negative_r {
-            return Err(
-                "polar: origin = \"signed-radius\" needs an arm that passes the centre (negative_r = true)"
-                    .into(),
-            );
+            return Err(Diagnostic::settings(
+                "polar: origin = \"signed-radius\" needs an arm that passes the centre (negative_r = true)",
+            ));
         }
         positive(self.screw.e_per_rev, "screw.e_per_rev")?;
         positive(self.screw.max_rpm, "screw.max_rpm")?;
         non_negative(self.screw.min_rpm, "screw.min_rpm")?;
         if self.screw.min_rpm > self.screw.max_rpm {
-            return Err("polar: screw.min_rpm is above screw.max_rpm".into());
+            return Err(Diagnostic::settings(
+                "polar: screw.min_rpm is above screw.max_rpm",
+            ));
         }
         if !self.screw.rpm_command.contains("{rpm}") {
-            return Err("polar: screw.rpm_command must contain {rpm}".into());
+            return Err(Diagnostic::settings(
+                "polar: screw.rpm_command must contain {rpm}",
+            ));
         }
         non_negative(self.valve.open_delay_s, "valve.open_delay_s")?;
         non_negative(self.valve.close_delay_s, "valve.close_delay_s")?;
         if self.valve.open_command.trim().is_empty() || self.valve.close_command.trim().is_empty() {
-            return Err(
-                "polar: valve.open_command and valve.close_command must not be empty".into(),
-            );
+            return Err(Diagnostic::settings(
+                "polar: valve.open_command and valve.close_command must not be empty",
+            ));
         }
         Ok(())
     }

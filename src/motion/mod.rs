@@ -68,7 +68,8 @@ use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use crate::ir::{AXIS_COUNT, Arc, Axis, FeedMode, Joints, Motion, MotionKind, Target};
-use crate::machine::{Controller, FeedRule, PerAxis};
+use crate::machine::polar::Polar;
+use crate::machine::{Controller, FeedRule, Machine, PerAxis};
 
 /// Speed assumed for rapids when nothing else is known, mm/min.
 pub const DEFAULT_RAPID_FEED: f64 = 3000.0;
@@ -98,7 +99,7 @@ impl std::str::FromStr for Timing {
     }
 }
 
-/// The timing a pass uses: the run-wide `--timing` (in [`crate::passes::Context`]) wins,
+/// The timing a pass uses: the run-wide `--timing` wins,
 /// then the pass's own `timing` option, then the controller's `timing`.
 pub fn resolve_timing(run: Option<Timing>, pass: Option<Timing>, controller: Timing) -> Timing {
     run.or(pass).unwrap_or(controller)
@@ -156,15 +157,20 @@ impl Model {
         }
     }
 
-    /// The model a pass uses: the polar machine's controller, else the machine's, else
-    /// the default controller; timing by [`resolve_timing`] with the pass's option.
-    pub fn from_context(ctx: &crate::passes::Context<'_>, pass_timing: Option<Timing>) -> Model {
-        let controller = ctx
-            .polar
+    /// The model a run uses: the polar machine's controller (the screw printer's), else
+    /// the machine's, else the default controller; timing by [`resolve_timing`] from the
+    /// run-wide timing `run` and a pass's own option `pass`.
+    pub fn for_machines(
+        polar: Option<&Polar>,
+        machine: Option<&Machine>,
+        run: Option<Timing>,
+        pass: Option<Timing>,
+    ) -> Model {
+        let controller = polar
             .map(|p| &p.controller)
-            .or(ctx.machine.map(|m| &m.controller));
+            .or(machine.map(|m| &m.controller));
         let model = controller.map(Model::new).unwrap_or_default();
-        let timing = resolve_timing(ctx.timing, pass_timing, model.timing);
+        let timing = resolve_timing(run, pass, model.timing);
         model.with_timing(timing)
     }
 
@@ -234,17 +240,11 @@ impl Model {
     ) -> Segment {
         // Axes known at both ends move by the difference, the others not at all.
         let both = from.known.intersection(to.known);
-        // Every axis, selected without a branch: the distance below then reads the
-        // differences from registers. Written per known axis, they were read back as
-        // pairs that straddled two single stores, and every segment waited on that.
         let mut delta = [0.0; AXIS_COUNT];
         for (k, d) in delta.iter_mut().enumerate() {
-            let diff = to.values[k] - from.values[k];
-            *d = if both.contains(Axis::ALL[k]) {
-                diff
-            } else {
-                0.0
-            };
+            if both.contains(Axis::ALL[k]) {
+                *d = to.values[k] - from.values[k];
+            }
         }
         let arc_len = arc.map(|a| arc_length(from, to, &a));
         let length = rule_distance(self.rule, &delta, arc_len);
@@ -342,8 +342,7 @@ pub fn rule_distance(rule: FeedRule, delta: &[f64; AXIS_COUNT], arc: Option<f64>
     match rule {
         FeedRule::Euclidean => {
             let rest = norm(&[3, 4, 5, 6, 7, 8]);
-            // `hypot(x, 0)` is `|x|` exactly: skip the libm call when no rotary moves.
-            let d = if rest == 0.0 { xyz } else { xyz.hypot(rest) };
+            let d = xyz.hypot(rest);
             if d > 0.0 { d } else { e }
         }
         FeedRule::Nist | FeedRule::InverseTime => {
@@ -642,18 +641,6 @@ pub fn polar_point(j: &Joints, r_axis: Axis, theta_axis: Axis) -> Point3<f64> {
     Point3::new(r * th.cos(), r * th.sin(), j.values[Axis::Z.index()])
 }
 
-/// The (r, θ) axes of a preset's output when its blocks end up in polar joints: the
-/// preset has a `[polar]` table and no `polar-ik` pass with `kinematics = "controller"`
-/// (which keeps XY for firmware that does the polar kinematics itself).
-pub fn polar_axes(preset: &crate::preset::Preset) -> Option<(Axis, Axis)> {
-    let polar = preset.polar.as_ref()?;
-    let keeps_xy = preset.passes.iter().any(|p| {
-        p.name == "polar-ik"
-            && p.options.get("kinematics").and_then(|v| v.as_str()) == Some("controller")
-    });
-    (!keeps_xy).then_some((polar.r_axis, polar.theta_axis))
-}
-
 /// One item of the planned program, with its time.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Timed<T> {
@@ -735,8 +722,6 @@ pub struct Planner<T> {
     time: f64,
     /// Exit speed and segment of the last move handed out, while the machine is moving.
     last: Option<(Segment, f64)>,
-    /// The queued moves, reused by the backward pass.
-    scratch: Vec<Segment>,
 }
 
 impl<T> Planner<T> {
@@ -749,7 +734,6 @@ impl<T> Planner<T> {
             ready: VecDeque::new(),
             time: 0.0,
             last: None,
-            scratch: Vec::new(),
         }
     }
 
@@ -833,15 +817,12 @@ impl<T> Planner<T> {
     /// Fixes the exit speed of the first queued move and hands it (and the items before
     /// it) out.
     fn release_first_move(&mut self) {
-        let mut moving = std::mem::take(&mut self.scratch);
-        moving.clear();
-        moving.extend(
-            self.queue
-                .iter()
-                .filter_map(|p| p.seg.filter(|s| s.moves())),
-        );
+        let moving: Vec<Segment> = self
+            .queue
+            .iter()
+            .filter_map(|p| p.seg.filter(|s| s.moves()))
+            .collect();
         let Some(first) = moving.first().copied() else {
-            self.scratch = moving;
             return;
         };
         // Backward pass: the fastest exit of each move from which the machine can still
@@ -861,7 +842,6 @@ impl<T> Planner<T> {
         };
         // Forward pass for the first move: no faster than it can reach from its entry.
         let exit = exit.min((entry * entry + 2.0 * first.accel * first.length).sqrt());
-        self.scratch = moving;
         while let Some(p) = self.queue.pop_front() {
             let is_first = p.seg.is_some_and(|s| s.moves());
             self.hand_out(p.seg, p.dwell, p.payload, entry, exit);
@@ -879,8 +859,8 @@ impl<T> Planner<T> {
                 s.accel = f64::INFINITY;
             }
             let p = Profile::new(&s, v0, v1);
-            // Only the trapezoid planner joins a move to the last one (a 100-byte copy
-            // per move otherwise).
+            // Junction speeds are the trapezoid planner's: under constant velocity every
+            // move starts on its own.
             if !constant && s.moves() {
                 self.last = Some((s, p.v_exit));
             }

@@ -222,6 +222,18 @@ fn joints_after<'b>(
     Ok((j, next))
 }
 
+/// The (r, θ) axes of a preset's output when its blocks end up in polar joints: the
+/// preset has a `[polar]` table and no `polar-ik` pass with `kinematics = "controller"`
+/// (which keeps XY for firmware that does the polar kinematics itself).
+pub fn polar_axes(preset: &crate::preset::Preset) -> Option<(Axis, Axis)> {
+    let polar = preset.polar.as_ref()?;
+    let keeps_xy = preset.passes.iter().any(|p| {
+        p.name == "polar-ik"
+            && p.options.get("kinematics").and_then(|v| v.as_str()) == Some("controller")
+    });
+    (!keeps_xy).then_some((polar.r_axis, polar.theta_axis))
+}
+
 /// What a timed item of the speed plot stands for.
 #[derive(Debug, Clone, Copy)]
 enum Item {
@@ -371,21 +383,21 @@ impl SpeedPlot {
     }
 
     /// The plot for a preset: the controller of its `[polar]` table (with its r and θ
-    /// axes, see [`crate::motion::polar_axes`]) or `[machine]` table, `timing` overriding the controller's, rapids at
+    /// axes, see [`polar_axes`]) or `[machine]` table, `timing` overriding the controller's, rapids at
     /// `rapid_feed` mm/min.
     pub fn for_preset(
         preset: &crate::preset::Preset,
         timing: Option<crate::motion::Timing>,
         rapid_feed: f64,
     ) -> Self {
-        let ctx = crate::passes::Context {
-            machine: preset.machine.as_ref(),
-            polar: preset.polar.as_ref(),
+        let model = crate::motion::Model::for_machines(
+            preset.polar.as_ref(),
+            preset.machine.as_ref(),
             timing,
-            ..crate::passes::Context::default()
-        };
-        let model = crate::motion::Model::from_context(&ctx, None).with_rapid_feed(rapid_feed);
-        let mut plot = SpeedPlot::new(model, crate::motion::polar_axes(preset));
+            None,
+        )
+        .with_rapid_feed(rapid_feed);
+        let mut plot = SpeedPlot::new(model, polar_axes(preset));
         // The screw commands the preset's `extrude-rate` writes.
         for spec in preset.passes.iter().filter(|p| p.name == "extrude-rate") {
             let get = |k: &str| spec.options.get(k).and_then(|v| v.as_str());

@@ -63,7 +63,7 @@ impl Frame {
         if let Some(m) = &preset.machine {
             return Frame::Machine(Box::new(m.clone()));
         }
-        match crate::motion::polar_axes(preset) {
+        match super::polar_axes(preset) {
             Some((r, theta)) => Frame::Polar { r, theta },
             None => Frame::Cartesian,
         }

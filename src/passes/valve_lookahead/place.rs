@@ -1,0 +1,497 @@
+//! Placing the valve commands: each command goes its delay of motion time before its
+//! target (a run's first extruding move, or the end of its last), splitting the move
+//! running then, and is moved until the re-timed window agrees (settling).
+
+use crate::diag::Diagnostic;
+use crate::ir::{AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Span};
+
+use super::window::{Item, Kind, micros};
+use super::{Output, SETTLE_ROUNDS, SETTLE_TOL, SPLIT_EPS, ValveLookahead, WARN_TOL};
+
+/// A valve command to place.
+#[derive(Debug, Clone)]
+pub(super) struct Event {
+    open: bool,
+    /// Open: the start id of the run's first item; close: the end id of its last.
+    target: u64,
+    delay: f64,
+    /// Correction of the wanted time found by settling.
+    corr: f64,
+    /// The previous correction and the error it gave.
+    last: Option<(f64, f64)>,
+    /// The item this event split, and the ids of the two parts' inner ends.
+    original: Option<(Item, u64, u64)>,
+    /// Placed at the earliest allowed point, short of its delay.
+    clamped: bool,
+    span: Span,
+}
+
+/// Where a command goes among the held items.
+struct Spot {
+    /// The index it is inserted at.
+    pos: usize,
+    /// At the earliest allowed point, short of its delay.
+    clamped: bool,
+    /// The item split for it, and the ids of the two parts' inner ends.
+    original: Option<(Item, u64, u64)>,
+}
+
+impl ValveLookahead {
+    pub(super) fn ensure_timed(&mut self) {
+        if self.clock.dirty {
+            self.retime();
+        }
+    }
+
+    pub(super) fn find_start(&self, id: u64) -> Option<usize> {
+        self.queue.items.iter().position(|it| it.start_id == id)
+    }
+
+    pub(super) fn find_end(&self, id: u64) -> Option<usize> {
+        self.queue.items.iter().rposition(|it| it.end_id == id)
+    }
+
+    fn find_marker(&self, id: u64) -> Option<usize> {
+        self.queue
+            .items
+            .iter()
+            .position(|it| matches!(it.kind, Kind::Marker(m) if m == id))
+    }
+
+    /// The target's index (where a zero-delay command would go) and time.
+    fn target_of(&self, ev: &Event) -> Option<(usize, f64)> {
+        if ev.open {
+            let i = self.find_start(ev.target)?;
+            Some((i, self.queue.items[i].start))
+        } else {
+            let i = self.find_end(ev.target)?;
+            Some((i + 1, self.queue.items[i].end()))
+        }
+    }
+
+    /// The command item of event `id`, with its block.
+    fn marker(&mut self, ev: &Event, id: u64) -> Item {
+        let text: &str = if ev.open {
+            &self.valve.open_command
+        } else {
+            &self.valve.close_command
+        };
+        let block = Block::new(
+            ev.span,
+            BlockKind::Command(Command {
+                text: text.into(),
+                modes: None,
+                clobbers: AxisSet::EMPTY,
+            }),
+        );
+        self.item(Kind::Marker(id), block, false)
+    }
+
+    /// Places event `id`'s command (and an open's dwell) by the current timing.
+    fn place(&mut self, id: u64, out: &mut Output<'_>) {
+        self.ensure_timed();
+        let Some(ev) = self.queue.events.get(&id).cloned() else {
+            return;
+        };
+        let Some((b, t_target)) = self.target_of(&ev) else {
+            // The target left the window (forced release): the command goes at its start.
+            let marker = self.marker(&ev, id);
+            self.queue.items.insert(0, marker);
+            self.clock.dirty = true;
+            if let Some(e) = self.queue.events.get_mut(&id) {
+                e.clamped = true;
+            }
+            return;
+        };
+        // Commands never move back across the previous command or a line of unknown time.
+        let mut lower = b;
+        while lower > 0 {
+            let it = &self.queue.items[lower - 1];
+            if matches!(it.kind, Kind::Marker(_) | Kind::Barrier) {
+                break;
+            }
+            lower -= 1;
+        }
+        let spot = self.spot(lower, b, t_target - ev.delay - ev.corr);
+        let marker = self.marker(&ev, id);
+        self.queue.items.insert(spot.pos, marker);
+        self.clock.dirty = true;
+        if let Some(e) = self.queue.events.get_mut(&id) {
+            e.original = spot.original;
+            e.clamped = spot.clamped;
+        }
+        if spot.clamped {
+            self.short_of_delay(id, &ev, lower, out);
+        }
+    }
+
+    /// Where a command wanted at time `desired` goes among items `lower..b`: after the
+    /// item that ends then, or inside the one running then (split there).
+    fn spot(&mut self, lower: usize, b: usize, desired: f64) -> Spot {
+        let mut spot = Spot {
+            pos: lower,
+            clamped: true,
+            original: None,
+        };
+        for i in (lower..b).rev() {
+            let it = &self.queue.items[i];
+            if it.start > desired + 1e-12 {
+                continue;
+            }
+            spot.clamped = false;
+            let end = it.end();
+            if desired >= end - SPLIT_EPS {
+                spot.pos = i + 1;
+            } else if desired - it.start <= SPLIT_EPS {
+                spot.pos = i;
+            } else {
+                let saved = it.clone();
+                match self.split(i, desired - it.start) {
+                    Some((ea, sb)) => {
+                        spot.original = Some((saved, ea, sb));
+                        spot.pos = i + 1;
+                    }
+                    None => {
+                        let it = &self.queue.items[i];
+                        spot.pos = if desired - it.start < it.end() - desired {
+                            i
+                        } else {
+                            i + 1
+                        };
+                    }
+                }
+            }
+            return spot;
+        }
+        // As late as the same time allows (after comments, modes, moves of no length).
+        while spot.pos < b
+            && self.queue.items[spot.pos].dur == 0.0
+            && matches!(self.queue.items[spot.pos].kind, Kind::Other | Kind::Move(_))
+        {
+            spot.pos += 1;
+        }
+        spot
+    }
+
+    /// Event `id`'s command went as early as it can (`lower` is the earliest index)
+    /// and may be short of its delay: an open makes up the rest with a dwell, a close
+    /// is warned about.
+    fn short_of_delay(&mut self, id: u64, ev: &Event, lower: usize, out: &mut Output<'_>) {
+        self.ensure_timed();
+        let (Some(m), Some((ti, tt))) = (self.find_marker(id), self.target_of(ev)) else {
+            return;
+        };
+        let gap = tt - self.queue.items[m].start;
+        let short = ev.delay - gap;
+        // An open that already has its dwell (placed again after the close before it
+        // moved) lengthens or shortens it.
+        if ev.open
+            && let Some(d) = self.owned_dwell(id)
+            && let Kind::Dwell { seconds, .. } = self.queue.items[d].kind
+        {
+            self.set_dwell(d, id, seconds + short);
+            return;
+        }
+        if short <= SETTLE_TOL / 2.0 {
+            return;
+        }
+        if ev.open {
+            self.open_dwell(id, ev, ti, short, gap, out);
+        } else if !self.queue.replacing {
+            self.warn_late_close(ev, lower, gap, out);
+        }
+    }
+
+    /// Inserts the dwell that makes up the `short` seconds an open lacks (`gap` seconds
+    /// of motion before its target at `ti`), with a warning.
+    fn open_dwell(
+        &mut self,
+        id: u64,
+        ev: &Event,
+        ti: usize,
+        short: f64,
+        gap: f64,
+        out: &mut Output<'_>,
+    ) {
+        let seconds = micros(short);
+        let mut dwell = Block::new(ev.span, BlockKind::Dwell { seconds });
+        dwell.comments.push(Comment {
+            text: "valve: waiting for the open delay".into(),
+            style: CommentStyle::Semicolon,
+        });
+        let kind = Kind::Dwell {
+            seconds,
+            owner: Some(id),
+        };
+        let item = self.item(kind, dwell, false);
+        self.queue.items.insert(ti, item);
+        self.clock.dirty = true;
+        if self.queue.replacing {
+            return;
+        }
+        let (span, delay) = (ev.span, ev.delay);
+        self.warn.dwelled.hit(out, || {
+            Diagnostic::warning(
+                "valve-lookahead::dwell",
+                format!(
+                    "only {gap:.4} s of motion before this extrusion start for an open delay of {delay:.4} s: dwelling {seconds:.4} s"
+                ),
+            )
+            .at_span(span)
+            .with_help("lengthen the travel before the start, or set keep_open_gap_s to keep the valve open across short gaps")
+        });
+    }
+
+    /// Warns that a close comes only `gap` seconds before its run ends: right after its
+    /// own run's open (a run too short for the delays), or after something in the way.
+    fn warn_late_close(&mut self, ev: &Event, lower: usize, gap: f64, out: &mut Output<'_>) {
+        let span = ev.span;
+        let lead = ev.delay;
+        let own_open = lower > 0
+            && matches!(self.queue.items[lower - 1].kind, Kind::Marker(o) if self.queue.events.get(&o).is_some_and(|e| e.open));
+        if own_open {
+            self.warn.short_run.hit(out, || {
+                Diagnostic::warning(
+                    "valve-lookahead::short-run",
+                    format!("this extrusion run is too short for the valve delays: the close follows the open at once ({gap:.4} s before the run ends instead of {lead:.4} s)"),
+                )
+                .at_span(span)
+            })
+        } else {
+            self.warn.late.hit(out, || {
+                Diagnostic::warning(
+                    "valve-lookahead::late-close",
+                    format!("the close command can only come {gap:.4} s before this extrusion ends, not {lead:.4} s"),
+                )
+                .at_span(span)
+                .with_help("a line of unknown time, the previous valve command or the look-ahead window's start is in the way")
+            })
+        }
+    }
+
+    /// The last dwell event `id` inserted.
+    fn owned_dwell(&self, id: u64) -> Option<usize> {
+        self.queue
+            .items
+            .iter()
+            .rposition(|it| matches!(it.kind, Kind::Dwell { owner: Some(o), .. } if o == id))
+    }
+
+    /// Sets dwell `d` of event `id` to `seconds` (whole microseconds), or removes it.
+    fn set_dwell(&mut self, d: usize, id: u64, seconds: f64) {
+        let seconds = micros(seconds);
+        if seconds > 0.0 {
+            self.queue.items[d].kind = Kind::Dwell {
+                seconds,
+                owner: Some(id),
+            };
+            self.queue.items[d].block.kind = BlockKind::Dwell { seconds };
+        } else {
+            self.queue.items.remove(d);
+        }
+        self.clock.dirty = true;
+    }
+
+    /// Takes event `id`'s command and dwell out again and merges its split.
+    fn undo(&mut self, id: u64) {
+        while let Some(d) = self
+            .queue
+            .items
+            .iter()
+            .rposition(|it| matches!(it.kind, Kind::Dwell { owner: Some(o), .. } if o == id))
+        {
+            self.queue.items.remove(d);
+        }
+        self.undo_marker(id);
+    }
+
+    /// Takes event `id`'s command out again and merges its split.
+    fn undo_marker(&mut self, id: u64) {
+        if let Some(m) = self.find_marker(id) {
+            self.queue.items.remove(m);
+        }
+        if let Some((mut orig, ea, sb)) = self
+            .queue
+            .events
+            .get_mut(&id)
+            .and_then(|e| e.original.take())
+            && let Some(a) = self.find_end(ea)
+            && a + 1 < self.queue.items.len()
+            && self.queue.items[a + 1].start_id == sb
+        {
+            // A dwell may have been lengthened or shortened since: merge what is there.
+            if let (
+                Kind::Dwell { seconds: sa, .. },
+                Kind::Dwell { seconds: sb, .. },
+                Kind::Dwell { owner, .. },
+            ) = (
+                &self.queue.items[a].kind,
+                &self.queue.items[a + 1].kind,
+                &orig.kind,
+            ) {
+                let seconds = micros(sa + sb);
+                orig.kind = Kind::Dwell {
+                    seconds,
+                    owner: *owner,
+                };
+                orig.block.kind = BlockKind::Dwell { seconds };
+            }
+            self.queue.items[a] = orig;
+            self.queue.items.remove(a + 1);
+        }
+        self.clock.dirty = true;
+    }
+
+    /// How far event `id`'s command is off its delay, seconds, when it is further off
+    /// than the settling tolerance and can be moved.
+    fn error_of(&mut self, id: u64) -> Option<f64> {
+        self.ensure_timed();
+        let ev = self.queue.events.get(&id)?;
+        let (_, tt) = self.target_of(ev)?;
+        let m = self.find_marker(id)?;
+        let error = (tt - self.queue.items[m].start) - ev.delay;
+        let stuck = ev.clamped && !ev.open && error < 0.0;
+        (error.abs() > SETTLE_TOL && !stuck).then_some(error)
+    }
+
+    /// Moves every held command until its time to its target is the delay.
+    pub(super) fn settle(&mut self, out: &mut Output<'_>) {
+        for _ in 0..SETTLE_ROUNDS {
+            let ids: Vec<u64> = self
+                .queue
+                .items
+                .iter()
+                .filter_map(|it| match it.kind {
+                    Kind::Marker(id) => Some(id),
+                    _ => None,
+                })
+                .collect();
+            let mut changed = false;
+            for id in ids {
+                let Some(error) = self.error_of(id) else {
+                    continue;
+                };
+                changed = true;
+                self.fix(id, error, out);
+            }
+            if !changed {
+                return;
+            }
+        }
+    }
+
+    /// Moves event `id`'s command (or changes its dwell) by `error` seconds.
+    fn fix(&mut self, id: u64, error: f64, out: &mut Output<'_>) {
+        // An open's own dwell takes the error first.
+        if let Some(d) = self.owned_dwell(id)
+            && let Kind::Dwell { seconds, .. } = self.queue.items[d].kind
+            && seconds - error > 0.0
+        {
+            self.set_dwell(d, id, seconds - error);
+            return;
+        }
+        // Later commands placed before this one's target (an open that follows a close
+        // at once) are taken out and placed again after it, so the order holds.
+        let boundary = self
+            .queue
+            .events
+            .get(&id)
+            .and_then(|ev| self.target_of(ev))
+            .map_or(0, |(b, _)| b);
+        let later: Vec<u64> = self
+            .queue
+            .items
+            .iter()
+            .take(boundary)
+            .filter_map(|it| match it.kind {
+                Kind::Marker(l) if l > id => Some(l),
+                _ => None,
+            })
+            .collect();
+        for &l in &later {
+            self.undo_marker(l);
+        }
+        self.undo(id);
+        if let Some(e) = self.queue.events.get_mut(&id) {
+            // Secant step on error(corr): a split can add a corner (the printed split
+            // point is rounded), so the command's time does not move 1:1 with the wish.
+            let slope = match e.last {
+                Some((c1, e1)) if (e.corr - c1).abs() > 1e-9 => (error - e1) / (e.corr - c1),
+                _ => 1.0,
+            };
+            let slope = if slope.is_finite() && (0.2..=20.0).contains(&slope) {
+                slope
+            } else {
+                1.0
+            };
+            e.last = Some((e.corr, error));
+            e.corr -= error / slope;
+        }
+        // Re-placing repeats no warning.
+        self.queue.replacing = true;
+        self.place(id, out);
+        for l in later {
+            self.place(l, out);
+        }
+        self.queue.replacing = false;
+    }
+
+    /// Creates and places an event.
+    pub(super) fn event(&mut self, open: bool, target: u64, span: Span, out: &mut Output<'_>) {
+        let id = self.fresh();
+        let delay = if open {
+            self.valve.open_delay
+        } else {
+            self.valve.close_delay
+        };
+        self.queue.events.insert(
+            id,
+            Event {
+                open,
+                target,
+                delay,
+                corr: 0.0,
+                last: None,
+                original: None,
+                clamped: false,
+                span,
+            },
+        );
+        self.place(id, out);
+    }
+
+    pub(super) fn close_run(&mut self, out: &mut Output<'_>) {
+        if let Some(end) = self.run.end.take() {
+            let span = self.run.span;
+            self.event(false, end, span, out);
+        }
+        self.run.close_pending = false;
+        self.run.active = false;
+    }
+
+    /// Checks the commands among the first `count` items one last time before they
+    /// leave.
+    pub(super) fn check(&mut self, count: usize, out: &mut Output<'_>) {
+        self.ensure_timed();
+        for (i, it) in self.queue.items.iter().enumerate().take(count) {
+            let Kind::Marker(id) = it.kind else { continue };
+            let Some(ev) = self.queue.events.get(&id) else {
+                continue;
+            };
+            let Some((_, tt)) = self.target_of(ev) else {
+                continue;
+            };
+            let error = (tt - self.queue.items[i].start) - ev.delay;
+            if (ev.open || !ev.clamped) && error.abs() > WARN_TOL {
+                let span = ev.span;
+                self.warn.unsettled.hit(out, || {
+                    Diagnostic::warning(
+                        "valve-lookahead::off",
+                        format!("this valve command comes {:.4} s before its extrusion event instead of {:.4} s", error + ev.delay, ev.delay),
+                    )
+                    .at_span(span)
+                });
+            }
+        }
+    }
+}
