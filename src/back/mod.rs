@@ -20,6 +20,7 @@ use crate::ir::{
     MotionKind, OffsetChange, Plane, Target,
 };
 use crate::num::print as number;
+pub use crate::num::print::{Decimals, remember_printed};
 use number::{put_number, to_units};
 
 /// Writing stopped because the output cannot be written (a full disk, a closed pipe); the
@@ -46,87 +47,6 @@ pub trait Backend {
     }
     /// Flushes the output at the end of the program.
     fn finish(&mut self) -> Result<(), Diagnostic>;
-}
-
-/// Digits after the decimal point, per kind of value.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Decimals {
-    /// Linear axes and arc offsets, mm.
-    pub linear: u8,
-    /// Rotary axes, degrees.
-    pub rotary: u8,
-    /// The extruder axis, mm.
-    pub extruder: u8,
-    /// Feed rates.
-    pub feed: u8,
-}
-
-impl Default for Decimals {
-    fn default() -> Self {
-        Decimals {
-            linear: 3,
-            rotary: 3,
-            extruder: 5,
-            feed: 1,
-        }
-    }
-}
-
-impl Decimals {
-    /// Decimals for an axis.
-    pub fn axis(&self, axis: Axis) -> u8 {
-        if axis == Axis::E {
-            self.extruder
-        } else if axis.is_rotary() {
-            self.rotary
-        } else {
-            self.linear
-        }
-    }
-
-    /// The joints as the controller reads them: each known axis printed at its decimals
-    /// with `offsets` (the G92 offsets the backend adds), which are then taken off again.
-    /// An axis that `seen` (joints and their printed form) has at the same value takes its
-    /// printed value from there: most moves change two or three axes, and the rounding's
-    /// division is the costly part.
-    #[inline]
-    pub fn printed_joints(
-        &self,
-        j: &Joints,
-        offsets: &[f64; AXIS_COUNT],
-        seen: Option<&(Joints, Joints)>,
-    ) -> Joints {
-        let mut p = *j;
-        // The axes `seen` has a printed value for, as one set (not three tests per axis).
-        let (reusable, key, printed) = match seen {
-            Some((key, printed)) => (key.known.intersection(printed.known), key, printed),
-            None => (AxisSet::EMPTY, j, j),
-        };
-        for a in j.known.iter() {
-            let i = a.index();
-            if reusable.contains(a) && key.values[i] == j.values[i] {
-                p.values[i] = printed.values[i];
-            } else if let Some(v) = number::printed(j.values[i] + offsets[i], self.axis(a)) {
-                p.values[i] = v - offsets[i];
-            }
-        }
-        p
-    }
-}
-
-/// Keeps `joints` and their printed form as the `seen` pair for the next
-/// [`Decimals::printed_joints`], overwriting the pair in place (building a new pair and
-/// moving it in is a 176-byte copy on every move of the timing passes).
-#[inline]
-pub fn remember_printed(seen: &mut Option<(Joints, Joints)>, joints: Joints, printed: Joints) {
-    match seen {
-        Some((j, p)) => {
-            *j = joints;
-            *p = printed;
-        }
-        None => *seen = Some((joints, printed)),
-    }
 }
 
 /// How comments are written.
@@ -217,7 +137,6 @@ impl Line {
         }
     }
     /// `bytes[end..end + n]`, grown when the line needs it.
-    #[inline(always)]
     fn room(&mut self, n: usize) -> &mut [u8] {
         if self.end + n > self.bytes.len() {
             self.bytes.resize(self.end + n + 1024, 0);
@@ -233,7 +152,6 @@ impl Line {
     }
     /// Appends the word `letter` `units * 10^-decimals`, after a space unless the line
     /// is empty.
-    #[inline(always)]
     fn push_word(&mut self, letter: u8, units: i64, decimals: u8, trim: bool) {
         debug_assert!(letter.is_ascii());
         let spaced = !self.is_empty();
@@ -270,7 +188,6 @@ impl Line {
     }
     /// Ends the current line with a newline; writes the finished lines to `out` once
     /// they fill a chunk.
-    #[inline(always)]
     fn finish(&mut self, out: &mut impl Write) -> std::io::Result<()> {
         self.push_str("\n");
         self.start = self.end;
@@ -350,9 +267,6 @@ impl<W: Write> Emitter<W> {
     }
 
     /// `letter` is a word letter (an axis, `F`, `I`/`J`/`K`, `P`): always ASCII.
-    // Inlined: called for every word, and a call per word saved and restored the
-    // registers the number is built in.
-    #[inline(always)]
     fn word_units(&mut self, letter: char, units: i64, decimals: u8) {
         debug_assert!(letter.is_ascii(), "word letter {letter:?}");
         self.line

@@ -171,27 +171,27 @@ const DIAG_CAP: usize = 10;
 impl Backlash {
     /// The pass with `options`: amounts finite and `>= 0`, at least one `> 0`; a `feed`
     /// finite and `> 0`.
-    pub fn new(options: Options) -> Result<Backlash, String> {
+    pub fn new(options: Options) -> Result<Backlash, Diagnostic> {
         let amounts = [options.x, options.y, options.z];
         for (a, v) in AXES.iter().zip(amounts) {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!(
+                return Err(Diagnostic::settings(format!(
                     "{} = {v}: the backlash must be a number of mm >= 0",
                     a.letter().to_ascii_lowercase()
-                ));
+                )));
             }
         }
         if amounts.iter().all(|&v| v == 0.0) {
-            return Err(
-                "every backlash amount is 0: give the slack per axis in mm, for example --pass backlash:x=0.02,y=0.02".into(),
-            );
+            return Err(Diagnostic::settings(
+                "every backlash amount is 0: give the slack per axis in mm, for example --pass backlash:x=0.02,y=0.02",
+            ));
         }
         if let Some(f) = options.feed
             && !(f.is_finite() && f > 0.0)
         {
-            return Err(format!(
+            return Err(Diagnostic::settings(format!(
                 "feed = {f}: the take-up feed must be a number of mm/min > 0"
-            ));
+            )));
         }
         let mut axes = [AxisState::default(); 3];
         for (s, v) in axes.iter_mut().zip(amounts) {

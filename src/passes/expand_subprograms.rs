@@ -180,12 +180,12 @@ pub struct ExpandSubprograms {
 
 impl ExpandSubprograms {
     /// A pass with `options`.
-    pub fn new(options: Options) -> Result<Self, String> {
+    pub fn new(options: Options) -> Result<Self, Diagnostic> {
         if options.max_depth == 0 {
-            return Err("max_depth must be at least 1".into());
+            return Err(Diagnostic::settings("max_depth must be at least 1"));
         }
         if options.max_count == 0 {
-            return Err("max_count must be at least 1".into());
+            return Err(Diagnostic::settings("max_count must be at least 1"));
         }
         Ok(ExpandSubprograms {
             track: Tracker::new(&options.input),

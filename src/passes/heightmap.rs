@@ -154,8 +154,9 @@ pub struct Heightmap {
 }
 
 /// Reads a map file in `format`.
-pub fn read_map(path: &str, format: MapFormat) -> Result<HeightMap, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read `{path}`: {e}"))?;
+pub fn read_map(path: &str, format: MapFormat) -> Result<HeightMap, Diagnostic> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Diagnostic::settings(format!("cannot read `{path}`: {e}")))?;
     let map = match format {
         MapFormat::Auto => HeightMap::parse(&text),
         MapFormat::Rrf => HeightMap::parse_rrf(&text),
@@ -163,23 +164,25 @@ pub fn read_map(path: &str, format: MapFormat) -> Result<HeightMap, String> {
         MapFormat::GrblLog => HeightMap::parse_grbl_log(&text),
         MapFormat::Csv => HeightMap::parse_csv(&text),
     };
-    map.map_err(|e| format!("`{path}`: {e}"))
+    map.map_err(|e| Diagnostic::settings(format!("`{path}`: {}", e.message)))
 }
 
 impl Heightmap {
     /// The pass with the map file named in `options`.
-    pub fn from_file(options: Options) -> Result<Heightmap, String> {
+    pub fn from_file(options: Options) -> Result<Heightmap, Diagnostic> {
         if options.map.is_empty() {
-            return Err("set the height map file: --pass heightmap:map=heightmap.csv".into());
+            return Err(Diagnostic::settings(
+                "set the height map file: --pass heightmap:map=heightmap.csv",
+            ));
         }
         let map = read_map(&options.map, options.format)?;
         Heightmap::with_map(map, options)
     }
 
     /// The pass with an already read map (`options.map` is not read).
-    pub fn with_map(mut map: HeightMap, options: Options) -> Result<Heightmap, String> {
+    pub fn with_map(mut map: HeightMap, options: Options) -> Result<Heightmap, Diagnostic> {
         if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
-            return Err("tolerance must be a number > 0".into());
+            return Err(Diagnostic::settings("tolerance must be a number > 0"));
         }
         if options.unprobed == Unprobed::Nearest {
             map.fill_nearest()?;

@@ -73,9 +73,9 @@ pub struct LinearizeArcs {
 
 impl LinearizeArcs {
     /// The pass with `options` (the tolerance must be a number > 0).
-    pub fn new(options: Options) -> Result<LinearizeArcs, String> {
+    pub fn new(options: Options) -> Result<LinearizeArcs, Diagnostic> {
         if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
-            return Err("tolerance must be a number > 0".into());
+            return Err(Diagnostic::settings("tolerance must be a number > 0"));
         }
         Ok(LinearizeArcs {
             options,

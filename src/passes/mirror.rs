@@ -85,9 +85,9 @@ pub struct Mirror {
 
 impl Mirror {
     /// The pass with `options` (a given shift must be finite).
-    pub fn new(options: Options) -> Result<Mirror, String> {
+    pub fn new(options: Options) -> Result<Mirror, Diagnostic> {
         if options.shift.is_some_and(|s| !s.is_finite()) {
-            return Err("shift must be a number".into());
+            return Err(Diagnostic::settings("shift must be a number"));
         }
         Ok(Mirror {
             axis: match options.axis {

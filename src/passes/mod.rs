@@ -25,7 +25,7 @@ pub mod verify;
 
 use serde::de::DeserializeOwned;
 
-use crate::back::Decimals;
+use crate::num::print::Decimals;
 use crate::diag::Diagnostic;
 use crate::ir::Block;
 use crate::machine::Machine;

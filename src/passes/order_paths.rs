@@ -259,12 +259,12 @@ fn others_equal(a: &Joints, b: &Joints) -> bool {
 
 impl OrderPaths {
     /// The pass with `options`.
-    pub fn new(opt: Options) -> Result<OrderPaths, String> {
+    pub fn new(opt: Options) -> Result<OrderPaths, Diagnostic> {
         if !opt.cut_z.is_finite() {
-            return Err("cut_z must be a number".into());
+            return Err(Diagnostic::settings("cut_z must be a number"));
         }
         if opt.max_groups < 2 {
-            return Err("max_groups must be at least 2".into());
+            return Err(Diagnostic::settings("max_groups must be at least 2"));
         }
         Ok(OrderPaths {
             opt,
