@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Comment, CommentStyle, FeedMode, Joints, Motion,
-    MotionKind, OffsetChange, Plane, Target,
+    MotionKind, OffsetChange, Plane, Target, Tracker,
 };
 use crate::num::print as number;
 pub use crate::num::print::{Decimals, remember_printed};
@@ -216,9 +216,8 @@ pub(crate) struct Emitter<W: Write> {
     modes: Modes,
     /// Last printed program-frame value per axis, in print units.
     printed: [Option<i64>; AXIS_COUNT],
-    /// IR-frame position after the last block.
-    pos: Joints,
-    offsets: [f64; AXIS_COUNT],
+    /// IR-frame position after the last block, and the G92 offsets printing adds.
+    track: Tracker,
     /// Running E in print units (IR frame), for relative extrusion.
     e_units: Option<i64>,
     /// The span of the block being printed (for line-length errors).
@@ -240,12 +239,11 @@ impl<W: Write> Emitter<W> {
             modes: Modes::default(),
             printed: [None; AXIS_COUNT],
             // Like the frontend, the extruder's logical position starts at 0.
-            pos: {
+            track: Tracker::at({
                 let mut p = Joints::default();
                 p.set(Axis::E, 0.0);
                 p
-            },
-            offsets: [0.0; AXIS_COUNT],
+            }),
             e_units: Some(0),
             span: crate::ir::Span::default(),
             grbl_quiet: false,
@@ -535,7 +533,7 @@ impl<W: Write> Emitter<W> {
             let prog = if machine_frame {
                 v
             } else {
-                v + self.offsets[i]
+                v + self.track.offsets()[i]
             };
             let u = to_units(prog, self.axis_decimals[i])
                 .ok_or_else(|| too_large(a.letter(), prog, block))?;
@@ -550,7 +548,7 @@ impl<W: Write> Emitter<W> {
             let d = self.axis_decimals[i];
             let u = to_units(v, d).ok_or_else(|| too_large('E', v, block))?;
             e_target = Some(u);
-            let base = match (self.e_units, self.pos.get(Axis::E)) {
+            let base = match (self.e_units, self.track.pos().get(Axis::E)) {
                 (Some(b), _) => Some(b),
                 (None, Some(p)) => to_units(p, d),
                 (None, None) => None,
@@ -563,7 +561,7 @@ impl<W: Write> Emitter<W> {
                 Some(_) => {}
                 // The controller's E is not known: this move says where E goes, in M82.
                 None => {
-                    let prog = v + self.offsets[i];
+                    let prog = v + self.track.offsets()[i];
                     units[i] = to_units(prog, d).ok_or_else(|| too_large('E', prog, block))?;
                     e_absolute_once = true;
                     named.insert(Axis::E);
@@ -579,7 +577,7 @@ impl<W: Write> Emitter<W> {
                 if !named.contains(a)
                     && let Some(val) = target.get(a)
                 {
-                    let prog = val + self.offsets[a.index()];
+                    let prog = val + self.track.offsets()[a.index()];
                     units[a.index()] = to_units(prog, self.axis_decimals[a.index()])
                         .ok_or_else(|| too_large(a.letter(), prog, block))?;
                     named.insert(a);
@@ -595,7 +593,7 @@ impl<W: Write> Emitter<W> {
                     continue;
                 }
                 if let Some(v) = target.get(a) {
-                    let prog = v + self.offsets[a.index()];
+                    let prog = v + self.track.offsets()[a.index()];
                     if let Some(u) = to_units(prog, self.axis_decimals[a.index()]) {
                         units[a.index()] = u;
                         named.insert(a);
@@ -641,8 +639,8 @@ impl<W: Write> Emitter<W> {
             let scale = 10f64.powi(d as i32);
             let printed_start = |a: Axis, me: &Self| {
                 me.printed[a.index()]
-                    .map(|units| units as f64 / scale - me.offsets[a.index()])
-                    .or(me.pos.get(a))
+                    .map(|units| units as f64 / scale - me.track.offsets()[a.index()])
+                    .or(me.track.pos().get(a))
             };
             let (Some(su), Some(sv)) = (printed_start(u, self), printed_start(v, self)) else {
                 return Err(Diagnostic::error(
@@ -697,12 +695,11 @@ impl<W: Write> Emitter<W> {
         for a in kept.iter() {
             self.printed[a.index()] = Some(units[a.index()]);
         }
-        self.pos = *target;
+        self.track.motion(motion);
         if motion.machine_frame {
             for a in motion.written.iter() {
                 self.printed[a.index()] = None;
             }
-            self.pos.forget(motion.written);
         }
         Ok(())
     }
@@ -735,25 +732,21 @@ impl<W: Write> Emitter<W> {
             self.word(a.letter(), v, self.axis_decimals[a.index()], block)?;
         }
         self.end_line(&block.comments, true)?;
-        self.offsets = change.offsets;
+        let declared = self.track.offset(change);
+        let (pos, offsets) = (*self.track.pos(), *self.track.offsets());
         for a in Axis::ALL {
-            self.printed[a.index()] = match self.pos.get(a) {
-                Some(v) => to_units(v + self.offsets[a.index()], self.axis_decimals[a.index()]),
-                None => None,
+            let i = a.index();
+            self.printed[i] = if declared.contains(a) {
+                to_units(change.declared.values[i], self.axis_decimals[i])
+            } else {
+                pos.get(a)
+                    .and_then(|v| to_units(v + offsets[i], self.axis_decimals[i]))
             };
         }
-        for a in change.declared.known.iter() {
-            if self.pos.get(a).is_none() {
-                let v = change.declared.values[a.index()] - change.offsets[a.index()];
-                self.pos.set(a, v);
-                self.printed[a.index()] = to_units(
-                    change.declared.values[a.index()],
-                    self.axis_decimals[a.index()],
-                );
-                if a == Axis::E {
-                    self.e_units = to_units(v, self.fmt.decimals.extruder);
-                }
-            }
+        if declared.contains(Axis::E) {
+            self.e_units = pos
+                .get(Axis::E)
+                .and_then(|v| to_units(v, self.fmt.decimals.extruder));
         }
         Ok(())
     }
@@ -765,7 +758,7 @@ impl<W: Write> Emitter<W> {
                 self.e_units = None;
             }
         }
-        self.pos.forget(axes);
+        self.track.forget(axes);
     }
 
     fn command(

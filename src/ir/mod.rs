@@ -21,7 +21,10 @@
 
 pub mod dump;
 mod printed;
+mod track;
 pub mod verify;
+
+pub use track::{Step, Tracker};
 
 use nalgebra::{Point3, Unit, Vector3};
 

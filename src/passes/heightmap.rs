@@ -146,7 +146,7 @@ pub struct Heightmap {
     map: HeightMap,
     options: Options,
     /// The IR (uncompensated) position after the last block.
-    pos: Joints,
+    track: crate::ir::Tracker,
     /// Diagnostics per code so far.
     counts: BTreeMap<&'static str, usize>,
     /// Vertices of the move being cut (reused).
@@ -190,7 +190,7 @@ impl Heightmap {
         Ok(Heightmap {
             map,
             options,
-            pos: Joints::default(),
+            track: crate::ir::Tracker::default(),
             counts: BTreeMap::new(),
             pieces: Vec::new(),
         })
@@ -352,7 +352,7 @@ impl Heightmap {
     /// One block of the input: puts out what becomes of it.
     fn block(&mut self, block: Block, out: &mut Output<'_>) {
         let BlockKind::Motion(m) = &block.kind else {
-            super::linearize_arcs::track(&mut self.pos, &block);
+            self.track.update(&block);
             out.push(block);
             return;
         };
@@ -362,7 +362,7 @@ impl Heightmap {
                     .at_span(block.span)
                     .with_help("put linearize-arcs before heightmap: --pass linearize-arcs --pass heightmap:map=FILE")
             });
-            super::linearize_arcs::track(&mut self.pos, &block);
+            self.track.update(&block);
             out.push(block);
             return;
         }
@@ -379,7 +379,7 @@ impl Heightmap {
                         .with_help("put heightmap after ik")
                     });
                 }
-                super::linearize_arcs::track(&mut self.pos, &block);
+                self.track.update(&block);
                 out.push(block);
                 return;
             }
@@ -397,19 +397,19 @@ impl Heightmap {
                 .with_help("start the program with a move to absolute X, Y and Z (the first such move is reported)")
             });
             self.counts.insert("heightmap::unknown", DIAG_CAP + 1);
-            self.pos = to;
+            self.track.set_pos(to);
             out.push(block);
             return;
         }
-        let from = self.pos;
+        let from = *self.track.pos();
         let start_known = from.known.contains(Axis::X) && from.known.contains(Axis::Y);
         if let Err((what, x, y)) = self.cut(&from, &to, start_known) {
             self.missing(what, x, y, &block, out);
-            self.pos = to;
+            self.track.set_pos(to);
             out.push(block);
             return;
         }
-        self.pos = to;
+        self.track.set_pos(to);
         let Block {
             span,
             kind,

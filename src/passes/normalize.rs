@@ -50,8 +50,7 @@ use serde::{Deserialize, Serialize};
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Comment, CommentStyle, Joints, OffsetCode,
-    WrittenModes,
+    Axis, AxisSet, Block, BlockKind, Comment, CommentStyle, OffsetCode, Tracker, WrittenModes,
 };
 
 /// Options of `normalize` (none).
@@ -75,12 +74,11 @@ const MM_PER_INCH: f64 = 25.4;
 /// The `normalize` pass.
 #[derive(Debug, Default)]
 pub struct Normalize {
-    /// The IR position.
-    pos: Joints,
+    /// The IR position and the G92 offsets in force in the source (program = IR +
+    /// offset).
+    track: Tracker,
     /// Axes that have been known at some point.
     ever_known: AxisSet,
-    /// The G92 offsets in force in the source (program = IR + offset).
-    offsets: [f64; AXIS_COUNT],
 }
 
 /// One `letter value` word of a command's text.
@@ -143,7 +141,7 @@ impl Normalize {
 
     fn offset_in_use(&self, text: &str) -> bool {
         Axis::ALL.iter().any(|a| {
-            self.offsets[a.index()] != 0.0 && crate::num::lexer::has_word(text, a.letter())
+            self.track.offsets()[a.index()] != 0.0 && crate::num::lexer::has_word(text, a.letter())
         })
     }
 
@@ -168,7 +166,7 @@ impl Normalize {
                     let scale = if axis.is_rotary() { 1.0 } else { unit };
                     let mm = v * scale;
                     let ir = if modes.relative {
-                        match self.pos.get(axis) {
+                        match self.track.pos().get(axis) {
                             Some(p) => p + mm,
                             None => {
                                 return Err(Diagnostic::error(
@@ -183,7 +181,7 @@ impl Normalize {
                             }
                         }
                     } else {
-                        mm - self.offsets[axis.index()]
+                        mm - self.track.offsets()[axis.index()]
                     };
                     words.push(format!("{}{}", axis.letter(), fmt_num(ir)));
                 }
@@ -235,7 +233,7 @@ impl Normalize {
                 let mut declares = Vec::new();
                 if code == OffsetCode::Set {
                     for a in change.declared.known.iter() {
-                        if self.pos.get(a).is_some() {
+                        if self.track.pos().get(a).is_some() {
                             continue;
                         }
                         if self.ever_known.contains(a) {
@@ -252,14 +250,10 @@ impl Normalize {
                             );
                         }
                         declares.push(a);
-                        self.pos.set(
-                            a,
-                            change.declared.values[a.index()] - change.offsets[a.index()],
-                        );
                         self.ever_known.insert(a);
                     }
                 }
-                self.offsets = change.offsets;
+                self.track.offset(change);
                 let text = if declares.is_empty() {
                     format!("`{what}` folded into the coordinates")
                 } else {
@@ -278,13 +272,10 @@ impl Normalize {
                 out.push(b);
                 return;
             }
-            BlockKind::Motion(m) => match m.target.joints() {
-                Some(j) if !m.machine_frame => {
-                    self.pos = *j;
-                    self.ever_known = self.ever_known.union(j.known);
-                }
-                _ => self.pos.forget(m.written),
-            },
+            BlockKind::Motion(m) => {
+                self.track.motion(m);
+                self.ever_known = self.ever_known.union(self.track.pos().known);
+            }
             BlockKind::Command(cmd) => {
                 if let Some(modes) = cmd.modes {
                     let odd = modes.inch || modes.relative || self.offset_in_use(&cmd.text);
@@ -331,7 +322,7 @@ impl Normalize {
                         }
                     }
                 }
-                self.pos.forget(cmd.clobbers);
+                self.track.forget(cmd.clobbers);
             }
             BlockKind::Verbatim(v) => {
                 let codes = g_codes(&v.text);
@@ -364,7 +355,7 @@ impl Normalize {
                     m.inch = false;
                     m.relative = false;
                 }
-                self.pos.forget(v.clobbers);
+                self.track.forget(v.clobbers);
             }
             _ => {}
         }

@@ -221,7 +221,7 @@ pub struct OrderPaths {
     state: State,
     /// The tool position after the last block taken in (input order within the segment,
     /// output order after a flush).
-    pos: Joints,
+    track: crate::ir::Tracker,
     seg: Segment,
     /// Barriers that do not care where the tool is (`M5`, `T2 M6`, `G4`, comments) after
     /// a segment with groups: whether the segment may end anywhere depends on what comes
@@ -269,7 +269,7 @@ impl OrderPaths {
         Ok(OrderPaths {
             opt,
             state: State::Travel,
-            pos: Joints::default(),
+            track: crate::ir::Tracker::default(),
             seg: Segment::new(),
             held: Vec::new(),
             before: 0.0,
@@ -289,20 +289,20 @@ impl OrderPaths {
         let Target::Joints(t) = m.target else {
             return None;
         };
-        (!m.machine_frame && xyz_known(&self.pos) && xyz_known(&t)).then_some(t)
+        (!m.machine_frame && xyz_known(self.track.pos()) && xyz_known(&t)).then_some(t)
     }
 
     fn take(&mut self, block: Block) {
         if self.seg.start.is_none() {
-            self.seg.start = Some(self.pos);
+            self.seg.start = Some(*self.track.pos());
         }
-        crate::passes::linearize_arcs::track(&mut self.pos, &block);
+        self.track.update(&block);
         self.seg.blocks.push(block);
     }
 
     /// Emits a block that is not part of a segment.
     fn pass_on(&mut self, block: Block, out: &mut Output<'_>) {
-        crate::passes::linearize_arcs::track(&mut self.pos, &block);
+        self.track.update(&block);
         out.push(block);
         if self.state == State::Travel && !self.above() {
             self.state = State::Passing;
@@ -311,7 +311,7 @@ impl OrderPaths {
 
     /// The tool is known to be at or above `cut_z`.
     fn above(&self) -> bool {
-        self.pos.get(Axis::Z).is_some_and(|z| z >= self.opt.cut_z)
+        self.track.pos().get(Axis::Z).is_some_and(|z| z >= self.opt.cut_z)
     }
 
     fn barrier(&mut self, block: Block, end: End, out: &mut Output<'_>) {
@@ -355,7 +355,7 @@ impl OrderPaths {
                 .last()
                 .map(|g| g.exit)
                 .or(seg.start)
-                .unwrap_or(self.pos),
+                .unwrap_or(*self.track.pos()),
         };
         let blocks = &seg.blocks[first..];
         // Walk the group: XY of each move, first and last XY-changing move.
@@ -433,8 +433,8 @@ impl OrderPaths {
         // Where the tool must end in XY, if anywhere.
         let fixed_end: Option<Joints> = match end {
             End::Pinned => Some(seg.groups[n].before),
-            End::Fixed => Some(self.pos),
-            End::Free if tail_has_travel => Some(self.pos),
+            End::Fixed => Some(*self.track.pos()),
+            End::Free if tail_has_travel => Some(*self.track.pos()),
             End::Free => None,
         };
         let problem = Problem {
@@ -511,7 +511,7 @@ impl OrderPaths {
             cur = exit;
         }
         if pinned {
-            self.pos = cur;
+            self.track.set_pos(cur);
             self.state = State::Passing;
             return;
         }
@@ -525,13 +525,13 @@ impl OrderPaths {
             None => {
                 // Only the height matters.
                 let mut e = cur;
-                e.values[2] = self.pos.values[2];
+                e.values[2] = self.track.pos().values[2];
                 travel(&cur, &e, f64::NEG_INFINITY, span, feed, out);
                 cur = e;
             }
         }
         if fixed_end.is_none() {
-            self.pos = cur;
+            self.track.set_pos(cur);
         }
     }
 }
@@ -999,7 +999,7 @@ impl OrderPaths {
         match self.state {
             State::Passing => {
                 let ends = matches!(block.kind, BlockKind::Motion(_));
-                crate::passes::linearize_arcs::track(&mut self.pos, &block);
+                self.track.update(&block);
                 out.push(block);
                 if ends && self.above() {
                     self.state = State::Travel;
@@ -1008,7 +1008,7 @@ impl OrderPaths {
             State::Cutting { first } => {
                 let ok = match &block.kind {
                     BlockKind::Motion(m) => self.clean_target(m),
-                    BlockKind::Comment | BlockKind::Dwell { .. } => Some(self.pos),
+                    BlockKind::Comment | BlockKind::Dwell { .. } => Some(*self.track.pos()),
                     _ => None,
                 };
                 let Some(t) = ok else {
@@ -1051,7 +1051,7 @@ impl OrderPaths {
                     let Some(t) = self.clean_target(m) else {
                         return self.barrier(block, End::Fixed, out);
                     };
-                    if !others_equal(&self.pos, &t) {
+                    if !others_equal(self.track.pos(), &t) {
                         return self.barrier(block, End::Fixed, out);
                     }
                     if t.values[2] < self.opt.cut_z {
@@ -1069,14 +1069,14 @@ impl OrderPaths {
                     {
                         return self.barrier(block, End::Fixed, out);
                     }
-                    let d = (xy(&t) - xy(&self.pos)).norm();
+                    let d = (xy(&t) - xy(self.track.pos())).norm();
                     if d > 0.0 {
                         self.seg.travel += d;
-                        self.seg.height = self.seg.height.max(t.values[2]).max(self.pos.values[2]);
+                        self.seg.height = self.seg.height.max(t.values[2]).max(self.track.pos().values[2]);
                     }
                     self.take(block);
                     if d > 0.0 {
-                        self.seg.arrive = Some((self.seg.blocks.len(), self.pos));
+                        self.seg.arrive = Some((self.seg.blocks.len(), *self.track.pos()));
                     }
                 }
                 _ if Self::program_end(&block) => self.barrier(block, End::Free, out),
