@@ -29,8 +29,8 @@
 //!   every combination of the distinct X and Y values exactly once (values within
 //!   1e-6 mm are the same line); otherwise the error names a missing or repeated point.
 
-use std::fmt::Write as _;
 use crate::diag::Diagnostic;
+use std::fmt::Write as _;
 
 /// Two coordinates closer than this (mm) are the same grid line.
 pub const SAME_LINE: f64 = 1e-6;

@@ -20,10 +20,12 @@
 //! 6. All numbers are finite `f64`.
 
 pub mod dump;
+mod modal;
 mod printed;
 mod track;
 pub mod verify;
 
+pub use modal::{Modal, MotionMode};
 pub use track::{Step, Tracker};
 
 use nalgebra::{Point3, Unit, Vector3};

@@ -30,7 +30,9 @@
 //! assert!(steps[2].declared.contains(Axis::Z));
 //! ```
 
-use super::{AXIS_COUNT, AxisSet, Block, BlockKind, Joints, Motion, OffsetChange, OffsetCode, Target};
+use super::{
+    AXIS_COUNT, AxisSet, Block, BlockKind, Joints, Motion, OffsetChange, OffsetCode, Target,
+};
 
 /// The position (IR frame) and the G92 offsets in force after the blocks seen so far.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]

@@ -5,7 +5,6 @@
 
 use serde::{Deserialize, Serialize};
 
-
 /// Digits after the decimal point, per kind of value.
 ///
 /// What an axis gets is [`Decimals::axis`] (in [`crate::ir`], which knows the axes).

@@ -16,7 +16,6 @@
 use serde::{Deserialize, Serialize};
 
 use super::{Check, Context, PassInfo};
-use crate::back::Backend;
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target, Tracker};
 use crate::motion::{self, Model, Planner, Timing};
@@ -186,7 +185,9 @@ impl Stats {
         self.planner.model().timing
     }
 
-    fn count(&mut self, block: &Block) {
+    /// Counts one block (the pipeline's `stats` backend feeds it every block that
+    /// reaches the end).
+    pub fn count(&mut self, block: &Block) {
         let (from, to) = match &block.kind {
             BlockKind::Motion(m) => match &m.target {
                 Target::Joints(end) => (self.point(self.track.pos()), self.point(end)),
@@ -367,22 +368,5 @@ impl Check for Stats {
     fn finish(&mut self, diags: &mut Vec<Diagnostic>) {
         self.end();
         diags.push(Diagnostic::note("stats::report", self.report()));
-    }
-}
-
-/// As a backend, `stats` counts what reaches the end of a pipeline (`ncpost stats`).
-impl Backend for Stats {
-    fn write_block(
-        &mut self,
-        block: &Block,
-        _diags: &mut Vec<Diagnostic>,
-    ) -> Result<(), Diagnostic> {
-        self.count(block);
-        Ok(())
-    }
-
-    fn finish(&mut self) -> Result<(), Diagnostic> {
-        self.end();
-        Ok(())
     }
 }

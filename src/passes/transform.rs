@@ -105,7 +105,9 @@ impl Transform {
             .iter()
             .all(|v| v.is_finite());
         if !finite {
-            return Err(Diagnostic::settings("dx, dy, dz, rotate, origin_x, origin_y and scale must be numbers"));
+            return Err(Diagnostic::settings(
+                "dx, dy, dz, rotate, origin_x, origin_y and scale must be numbers",
+            ));
         }
         if o.scale == 0.0 {
             return Err(Diagnostic::settings("scale must not be 0"));
