@@ -127,14 +127,6 @@ fn fanuc(line: u32, text: &str, options: &Options, inside_flow: bool) -> Option<
             reach: Reach::AllFanuc,
         });
     }
-    let bad = |msg: String, (s, e): (usize, usize), label: &str, help: &str| {
-        Call::Bad(
-            Diagnostic::error("subprograms::count", msg)
-                .at_bytes(line, text, s, e)
-                .with_label(label.to_string())
-                .with_help(help.to_string()),
-        )
-    };
     let Some((ps, pe, Some(p))) = word_positions(text, 'P').into_iter().next() else {
         return Some(Call::Bad(
             Diagnostic::error("subprograms::call", "M98 without a program number P")
@@ -156,8 +148,39 @@ fn fanuc(line: u32, text: &str, options: &Options, inside_flow: bool) -> Option<
         ));
     }
     let number: u32 = digits.parse().ok()?;
+    let (program, count, count_at) =
+        match repeat(line, text, options, (number, digits, &p), (ps, pe), m98_at)? {
+            Ok(r) => r,
+            Err(bad) => return Some(bad),
+        };
+    Some(Call::Expand {
+        key: Key::Fanuc(program),
+        count,
+        at: count_at,
+    })
+}
+
+/// The program a Fanuc call runs, how many times, and the byte range of the call that
+/// says so: from `L`, or from a packed `P` (when the option says so); `Some(Err)` for
+/// a bad count.
+fn repeat(
+    line: u32,
+    text: &str,
+    options: &Options,
+    (number, digits, p): (u32, &str, &str),
+    (ps, pe): (usize, usize),
+    m98_at: (usize, usize),
+) -> Option<Result<(u32, u32, (usize, usize)), Call>> {
+    let bad = |msg: String, (s, e): (usize, usize), label: &str, help: &str| {
+        Call::Bad(
+            Diagnostic::error("subprograms::count", msg)
+                .at_bytes(line, text, s, e)
+                .with_label(label.to_string())
+                .with_help(help.to_string()),
+        )
+    };
     let l = word_positions(text, 'L').into_iter().next();
-    let (program, count, count_at) = match l {
+    Some(match l {
         Some((ls, le, Some(lv))) => {
             let v = crate::num::parse_decimal(&lv).unwrap_or(f64::NAN);
             let max = options.max_count;
@@ -169,27 +192,27 @@ fn fanuc(line: u32, text: &str, options: &Options, inside_flow: bool) -> Option<
                 } else {
                     "too many repetitions"
                 };
-                return Some(bad(
+                return Some(Err(bad(
                     format!("repeat count `L{lv}` must be a whole number from 1 to {max}"),
                     (ls, le),
                     why,
                     "L counts how many times the subprogram runs (L1 or no L: once); remove the call to run it no time",
-                ));
+                )));
             }
-            (number, v as u32, (m98_at.0, le))
+            Ok((number, v as u32, (m98_at.0, le)))
         }
         Some((ls, le, None)) => {
-            return Some(bad(
+            return Some(Err(bad(
                 "`L` has no number".into(),
                 (ls, le),
                 "needs a count",
                 "write the repeat count after L: `L5`",
-            ));
+            )));
         }
         None if options.packed_count && digits.len() > 4 => {
             let count = number / 10_000;
             if count > options.max_count {
-                return Some(bad(
+                return Some(Err(bad(
                     format!(
                         "packed repeat count {count} in `P{p}` is above {}",
                         options.max_count
@@ -197,15 +220,10 @@ fn fanuc(line: u32, text: &str, options: &Options, inside_flow: bool) -> Option<
                     (ps, pe),
                     "too many repetitions",
                     "the digits before the last four count the repetitions",
-                ));
+                )));
             }
-            (number % 10_000, count.max(1), (m98_at.0, pe))
+            Ok((number % 10_000, count.max(1), (m98_at.0, pe)))
         }
-        None => (number, 1, (m98_at.0, pe)),
-    };
-    Some(Call::Expand {
-        key: Key::Fanuc(program),
-        count,
-        at: count_at,
+        None => Ok((number, 1, (m98_at.0, pe))),
     })
 }
