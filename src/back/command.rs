@@ -77,12 +77,11 @@ impl<W: Write> Emitter<W> {
 
     /// The words of `cmd` this firmware does not run (the rest of the command kept),
     /// with what the policy says about them in its terms; `None` for most commands.
-    #[allow(clippy::type_complexity)]
     fn unsupported_words(
         &self,
         block: &Block,
         cmd: &crate::ir::Command,
-    ) -> Result<Option<(String, String, rrf::Unsupported, Unsupported)>, Diagnostic> {
+    ) -> Result<Option<Split>, Diagnostic> {
         // The words this firmware does not run (the rest of the command kept), with what
         // the policy says about them in its terms; most commands have none and are
         // checked without allocating.
@@ -296,6 +295,10 @@ impl<W: Write> Emitter<W> {
         }
     }
 }
+
+/// A command split into the words kept and the words removed, with the policy for
+/// the removed ones and how they are reported.
+type Split = (String, String, rrf::Unsupported, Unsupported);
 
 /// How a firmware's unsupported words are reported and noted.
 struct Unsupported {

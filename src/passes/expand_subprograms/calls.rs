@@ -160,6 +160,9 @@ fn fanuc(line: u32, text: &str, options: &Options, inside_flow: bool) -> Option<
     })
 }
 
+/// A Fanuc call's program, repeat count and the byte range that says so.
+type Repeat = (u32, u32, (usize, usize));
+
 /// The program a Fanuc call runs, how many times, and the byte range of the call that
 /// says so: from `L`, or from a packed `P` (when the option says so); `Some(Err)` for
 /// a bad count.
@@ -170,7 +173,7 @@ fn repeat(
     (number, digits, p): (u32, &str, &str),
     (ps, pe): (usize, usize),
     m98_at: (usize, usize),
-) -> Option<Result<(u32, u32, (usize, usize)), Call>> {
+) -> Option<Result<Repeat, Call>> {
     let bad = |msg: String, (s, e): (usize, usize), label: &str, help: &str| {
         Call::Bad(
             Diagnostic::error("subprograms::count", msg)

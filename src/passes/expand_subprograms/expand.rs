@@ -124,8 +124,8 @@ impl<'a> Expander<'a> {
                     break;
                 }
                 emit_definition(
-                    &blocks,
-                    &defs,
+                    blocks,
+                    defs,
                     key,
                     keep(key),
                     self.used.contains(key),
@@ -138,8 +138,8 @@ impl<'a> Expander<'a> {
         }
         for (_, key) in next {
             emit_definition(
-                &blocks,
-                &defs,
+                blocks,
+                defs,
                 key,
                 keep(key),
                 self.used.contains(key),
