@@ -171,6 +171,7 @@ impl Builder {
                 Emit::Ir => None,
             },
             timing: self.timing,
+            relower: Some(gcode_relower),
         };
         let mut passes = Vec::new();
         for spec in &self.preset.passes {
@@ -775,4 +776,136 @@ pub fn compile_str(src: &str, preset: &Preset) -> Result<String, Vec<Diagnostic>
         return Err(diags);
     }
     Ok(String::from_utf8_lossy(&out).into_owned())
+}
+/// The G-code lowerer for `expand-subprograms`, made for frontend options `input`: the
+/// [`passes::Context::relower`] of every pipeline (passes do not depend on the
+/// frontends; this adapter is where they meet).
+///
+/// ```
+/// use ncpost::passes::expand_subprograms::lower::Input;
+/// let lowering = ncpost::pipeline::gcode_relower(&Input::default()).unwrap();
+/// assert!(lowering.oword_call("o100 call").is_some());
+/// ```
+pub fn gcode_relower(
+    input: &passes::expand_subprograms::lower::Input,
+) -> Result<Box<dyn passes::expand_subprograms::lower::Lowering>, Diagnostic> {
+    let options: front::gcode::Options = toml::Value::try_from(input)
+        .map_err(|e| Diagnostic::settings(e.to_string()))?
+        .try_into()
+        .map_err(|e: toml::de::Error| Diagnostic::settings(e.message()))?;
+    Ok(Box::new(GcodeLowering(options)))
+}
+
+/// [`gcode_relower`]'s lowerer: the G-code frontend's, with its options.
+struct GcodeLowering(front::gcode::Options);
+
+/// A body being lowered by the G-code frontend.
+struct GcodeBody(front::gcode::Lowerer);
+
+mod relower_states {
+    //! The frontend's lowering state and the IR's modal state are the same fields.
+    use crate::front::gcode::{LowerState, MotionMode as FrontMode};
+    use crate::ir::{Modal, MotionMode};
+
+    pub(super) fn to_ir(s: LowerState) -> Modal {
+        Modal {
+            motion: match s.motion {
+                FrontMode::None => MotionMode::None,
+                FrontMode::Rapid => MotionMode::Rapid,
+                FrontMode::Linear => MotionMode::Linear,
+                FrontMode::Arc { clockwise } => MotionMode::Arc { clockwise },
+                FrontMode::Unsupported => MotionMode::Unsupported,
+            },
+            plane: s.plane,
+            inch: s.inch,
+            relative: s.relative,
+            relative_e: s.relative_e,
+            arc_center_absolute: s.arc_center_absolute,
+            feed_mode: s.feed_mode,
+            feed: s.feed,
+            pos: s.pos,
+            offsets: s.offsets,
+            suspended: s.suspended,
+        }
+    }
+
+    pub(super) fn to_front(s: Modal) -> LowerState {
+        LowerState {
+            motion: match s.motion {
+                MotionMode::None => FrontMode::None,
+                MotionMode::Rapid => FrontMode::Rapid,
+                MotionMode::Linear => FrontMode::Linear,
+                MotionMode::Arc { clockwise } => FrontMode::Arc { clockwise },
+                MotionMode::Unsupported => FrontMode::Unsupported,
+            },
+            plane: s.plane,
+            inch: s.inch,
+            relative: s.relative,
+            relative_e: s.relative_e,
+            arc_center_absolute: s.arc_center_absolute,
+            feed_mode: s.feed_mode,
+            feed: s.feed,
+            pos: s.pos,
+            offsets: s.offsets,
+            suspended: s.suspended,
+        }
+    }
+}
+
+impl passes::expand_subprograms::lower::Lowering for GcodeLowering {
+    fn start(&self) -> crate::ir::Modal {
+        relower_states::to_ir(front::gcode::Lowerer::new(self.0.clone()).state())
+    }
+    fn body(
+        &self,
+        state: crate::ir::Modal,
+    ) -> Box<dyn passes::expand_subprograms::lower::BodyLowerer + '_> {
+        let state = relower_states::to_front(state);
+        Box::new(GcodeBody(front::gcode::Lowerer::for_body(
+            self.0.clone(),
+            state,
+        )))
+    }
+    fn oword_call(&self, text: &str) -> Option<passes::expand_subprograms::lower::OwordCall> {
+        front::gcode::oword_call(text).map(|c| passes::expand_subprograms::lower::OwordCall {
+            label: c.label,
+            simple: c.simple,
+            at: c.at,
+        })
+    }
+}
+
+impl passes::expand_subprograms::lower::BodyLowerer for GcodeBody {
+    fn line(
+        &mut self,
+        text: &str,
+        span: crate::ir::Span,
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) {
+        self.0.line(text, span, out, diags);
+    }
+    fn state(&self) -> crate::ir::Modal {
+        relower_states::to_ir(self.0.state())
+    }
+    fn set_state(&mut self, state: crate::ir::Modal) {
+        self.0.set_state(relower_states::to_front(state));
+    }
+}
+
+/// As a backend, `stats` counts what reaches the end of a pipeline (`ncpost stats`).
+impl Backend for passes::stats::Stats {
+    fn write_block(
+        &mut self,
+        block: &Block,
+        _diags: &mut Vec<Diagnostic>,
+    ) -> Result<(), Diagnostic> {
+        self.count(block);
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), Diagnostic> {
+        self.end();
+        Ok(())
+    }
 }

@@ -717,7 +717,7 @@ fn bad_options() {
         let e = passes::build(&name, &table, &Context::default())
             .err()
             .expect("an error");
-        report.push_str(&format!("{s}\n  {e}\n"));
+        report.push_str(&format!("{s}\n  {}\n", e.message));
     }
     insta::assert_snapshot!("bad_options", report);
 }

@@ -20,7 +20,11 @@ fn expand_with(src: &str, options: &str) -> (Vec<Block>, Vec<Diagnostic>) {
     let mut parser = Parser::new(src.as_bytes(), Options::default());
     let mut diags = Vec::new();
     let table: toml::Table = toml::from_str(options).unwrap();
-    let mut pass = passes::build("expand-subprograms", &table, &Context::default()).unwrap();
+    let ctx = Context {
+        relower: Some(ncpost::pipeline::gcode_relower),
+        ..Context::default()
+    };
+    let mut pass = passes::build("expand-subprograms", &table, &ctx).unwrap();
     let mut blocks = Vec::new();
     while let Some(b) = parser.next_block(&mut diags) {
         let mut out = Output::new(&mut blocks, &mut diags);

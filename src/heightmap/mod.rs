@@ -29,6 +29,7 @@
 //!   every combination of the distinct X and Y values exactly once (values within
 //!   1e-6 mm are the same line); otherwise the error names a missing or repeated point.
 
+use crate::diag::Diagnostic;
 use std::fmt::Write as _;
 
 /// Two coordinates closer than this (mm) are the same grid line.
@@ -109,7 +110,7 @@ impl HeightMap {
     /// let map = ncpost::heightmap::HeightMap::parse("0,0,0\n10,0,0.1\n0,10,0\n10,10,0.3\n").unwrap();
     /// assert!((map.height(5.0, 5.0).unwrap() - 0.1).abs() < 1e-12);
     /// ```
-    pub fn parse(text: &str) -> Result<HeightMap, String> {
+    pub fn parse(text: &str) -> Result<HeightMap, Diagnostic> {
         let first = text
             .lines()
             .map(str::trim)
@@ -127,7 +128,38 @@ impl HeightMap {
     }
 
     /// Reads a RepRapFirmware `heightmap.csv` (v1, v2, or v2 with axis letters).
-    pub fn parse_rrf(text: &str) -> Result<HeightMap, String> {
+    pub fn parse_rrf(text: &str) -> Result<HeightMap, Diagnostic> {
+        Self::parse_rrf_text(text).map_err(Diagnostic::settings)
+    }
+
+    /// Reads a bCNC `.probe` file.
+    pub fn parse_bcnc(text: &str) -> Result<HeightMap, Diagnostic> {
+        Self::parse_bcnc_text(text).map_err(Diagnostic::settings)
+    }
+
+    /// Reads `x,y,z` points (commas, semicolons or blanks between the numbers).
+    pub fn parse_csv(text: &str) -> Result<HeightMap, Diagnostic> {
+        Self::parse_csv_text(text).map_err(Diagnostic::settings)
+    }
+
+    /// Reads the `[PRB:x,y,z:1]` reports of a Grbl console log, in work coordinates.
+    pub fn parse_grbl_log(text: &str) -> Result<HeightMap, Diagnostic> {
+        Self::parse_grbl_log_text(text).map_err(Diagnostic::settings)
+    }
+
+    /// A map from points that must form a full rectilinear grid.
+    ///
+    /// ```
+    /// use ncpost::heightmap::HeightMap;
+    /// let err = HeightMap::from_points(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]).unwrap_err();
+    /// assert!(err.message.contains("no point at X1 Y1"), "{err}");
+    /// ```
+    pub fn from_points(points: &[[f64; 3]]) -> Result<HeightMap, Diagnostic> {
+        Self::from_points_text(points).map_err(Diagnostic::settings)
+    }
+
+    /// [`HeightMap::parse_rrf`], its error in words.
+    fn parse_rrf_text(text: &str) -> Result<HeightMap, String> {
         let mut lines = text.lines().map(str::trim).filter(|l| !l.is_empty());
         let head = lines.next().unwrap_or("");
         if !head.starts_with("RepRapFirmware height map file") {
@@ -218,8 +250,8 @@ impl HeightMap {
         })
     }
 
-    /// Reads a bCNC `.probe` file.
-    pub fn parse_bcnc(text: &str) -> Result<HeightMap, String> {
+    /// [`HeightMap::parse_bcnc`], its error in words.
+    fn parse_bcnc_text(text: &str) -> Result<HeightMap, String> {
         let mut lines = text.lines().map(str::trim).filter(|l| !l.is_empty());
         let mut header = [[0.0; 3]; 3];
         for (k, h) in header.iter_mut().enumerate() {
@@ -235,7 +267,7 @@ impl HeightMap {
         let points: Vec<[f64; 3]> = lines
             .map(|l| triple(l).ok_or_else(|| format!("`{l}` is not `x y z`")))
             .collect::<Result<_, _>>()?;
-        let mut map = Self::from_points(&points)?;
+        let mut map = Self::from_points_text(&points)?;
         map.format = Format::Bcnc;
         let [xmin, xmax, xn] = header[0];
         let [ymin, ymax, yn] = header[1];
@@ -259,8 +291,8 @@ impl HeightMap {
         Ok(map)
     }
 
-    /// Reads `x,y,z` points (commas, semicolons or blanks between the numbers).
-    pub fn parse_csv(text: &str) -> Result<HeightMap, String> {
+    /// [`HeightMap::parse_csv`], its error in words.
+    fn parse_csv_text(text: &str) -> Result<HeightMap, String> {
         let mut points = Vec::new();
         for (k, line) in text.lines().enumerate() {
             let line = line.split('#').next().unwrap_or("").trim();
@@ -278,13 +310,13 @@ impl HeightMap {
                 }
             }
         }
-        let mut map = Self::from_points(&points)?;
+        let mut map = Self::from_points_text(&points)?;
         map.format = Format::Csv;
         Ok(map)
     }
 
-    /// Reads the `[PRB:x,y,z:1]` reports of a Grbl console log, in work coordinates.
-    pub fn parse_grbl_log(text: &str) -> Result<HeightMap, String> {
+    /// [`HeightMap::parse_grbl_log`], its error in words.
+    fn parse_grbl_log_text(text: &str) -> Result<HeightMap, String> {
         let mut g54 = [0.0; 3];
         let mut g92 = [0.0; 3];
         let mut tlo = 0.0;
@@ -327,19 +359,13 @@ impl HeightMap {
                 }
             }
         }
-        let mut map = Self::from_points(&points)?;
+        let mut map = Self::from_points_text(&points)?;
         map.format = Format::GrblLog;
         Ok(map)
     }
 
-    /// A map from points that must form a full rectilinear grid.
-    ///
-    /// ```
-    /// use ncpost::heightmap::HeightMap;
-    /// let err = HeightMap::from_points(&[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]).unwrap_err();
-    /// assert!(err.contains("no point at X1 Y1"), "{err}");
-    /// ```
-    pub fn from_points(points: &[[f64; 3]]) -> Result<HeightMap, String> {
+    /// [`HeightMap::from_points`], its error in words.
+    fn from_points_text(points: &[[f64; 3]]) -> Result<HeightMap, String> {
         let lines = |k: usize| -> Vec<f64> {
             let mut v: Vec<f64> = points.iter().map(|p| p[k]).collect();
             v.sort_by(f64::total_cmp);
@@ -453,7 +479,7 @@ impl HeightMap {
 
     /// Fills every unprobed node with the height of the nearest probed node (ties: the
     /// first in row order). Errors when no node was probed.
-    pub fn fill_nearest(&mut self) -> Result<(), String> {
+    pub fn fill_nearest(&mut self) -> Result<(), Diagnostic> {
         let probed: Vec<(f64, f64, f64)> = (0..self.z.len())
             .filter_map(|k| {
                 let (i, j) = (k % self.xs.len(), k / self.xs.len());
@@ -461,7 +487,7 @@ impl HeightMap {
             })
             .collect();
         if probed.is_empty() {
-            return Err("the height map has no probed point".into());
+            return Err(Diagnostic::settings("the height map has no probed point"));
         }
         for k in 0..self.z.len() {
             if self.z[k].is_some() {
@@ -559,7 +585,12 @@ pub fn probe_lines(a: f64, b: f64, pitch: f64) -> Vec<f64> {
 /// assert!(text.contains("M557 X0:20 Y0:10 P3:2"));
 /// assert!(text.contains("G29 S0"));
 /// ```
-pub fn probe_program(o: &ProbeOptions) -> Result<String, String> {
+pub fn probe_program(o: &ProbeOptions) -> Result<String, Diagnostic> {
+    probe_text(o).map_err(Diagnostic::settings)
+}
+
+/// [`probe_program`], its error in words.
+fn probe_text(o: &ProbeOptions) -> Result<String, String> {
     let [x0, y0, x1, y1] = o.area;
     if !o.area.iter().all(|v| v.is_finite()) || x1 <= x0 || y1 <= y0 {
         return Err("the area must be X0,Y0,X1,Y1 with X1 > X0 and Y1 > Y0".into());

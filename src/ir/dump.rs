@@ -3,7 +3,7 @@
 use std::fmt::Write;
 
 use crate::ir::{
-    Axis, AxisSet, Block, BlockKind, CommentStyle, FeedMode, Joints, MotionKind, Target,
+    Axis, AxisSet, Block, BlockKind, CommentStyle, FeedMode, Joints, Motion, MotionKind, Target,
     VerbatimReason,
 };
 
@@ -20,61 +20,7 @@ use crate::ir::{
 pub fn write_block(out: &mut String, block: &Block) {
     let _ = write!(out, "{}: ", block.span.line);
     match &block.kind {
-        BlockKind::Motion(m) => {
-            out.push_str(match m.kind {
-                MotionKind::Rapid => "rapid",
-                MotionKind::Linear => "linear",
-                MotionKind::Arc(a) if a.clockwise => "arc-cw",
-                MotionKind::Arc(_) => "arc-ccw",
-            });
-            match &m.target {
-                Target::Joints(j) => joints(out, &quiet_e(j, m.written)),
-                Target::Pose(p) => {
-                    let _ = write!(
-                        out,
-                        " tip=({:.4}, {:.4}, {:.4}) axis=({:.6}, {:.6}, {:.6})",
-                        p.tip.x, p.tip.y, p.tip.z, p.axis.x, p.axis.y, p.axis.z
-                    );
-                    joints(out, p.extra());
-                }
-            }
-            if let MotionKind::Arc(a) = m.kind {
-                let (u, v, _) = a.plane.axes();
-                let _ = write!(
-                    out,
-                    " {} center {}{:.4} {}{:.4}",
-                    a.plane.gcode(),
-                    u.letter(),
-                    a.center[u.index()],
-                    v.letter(),
-                    a.center[v.index()]
-                );
-                if a.extra_turns > 0 {
-                    let _ = write!(out, " turns=+{}", a.extra_turns);
-                }
-            }
-            if !matches!(m.kind, MotionKind::Rapid) || m.feed.rate.is_some() {
-                match m.feed.rate {
-                    Some(r) => {
-                        let _ = write!(out, " feed={r:.4}");
-                    }
-                    None => out.push_str(" feed=none"),
-                }
-                out.push_str(match m.feed.mode {
-                    FeedMode::PerMinute => "/min",
-                    FeedMode::InverseTime => "/inverse-time",
-                    FeedMode::PerRevolution => "/rev",
-                });
-            }
-            if m.machine_frame {
-                out.push_str(" machine-frame");
-            }
-            out.push_str(" written=");
-            axes(out, m.written);
-            if !m.extra.is_empty() {
-                let _ = write!(out, " extra={:?}", m.extra);
-            }
-        }
+        BlockKind::Motion(m) => motion(out, m),
         BlockKind::Dwell { seconds } => {
             let _ = write!(out, "dwell {seconds:.4}s");
         }
@@ -132,6 +78,63 @@ pub fn write_block(out: &mut String, block: &Block) {
                 let _ = write!(out, " ;{}", c.text);
             }
         }
+    }
+}
+
+/// A move: kind, target, arc, feed and the words it was written with.
+fn motion(out: &mut String, m: &Motion) {
+    out.push_str(match m.kind {
+        MotionKind::Rapid => "rapid",
+        MotionKind::Linear => "linear",
+        MotionKind::Arc(a) if a.clockwise => "arc-cw",
+        MotionKind::Arc(_) => "arc-ccw",
+    });
+    match &m.target {
+        Target::Joints(j) => joints(out, &quiet_e(j, m.written)),
+        Target::Pose(p) => {
+            let _ = write!(
+                out,
+                " tip=({:.4}, {:.4}, {:.4}) axis=({:.6}, {:.6}, {:.6})",
+                p.tip.x, p.tip.y, p.tip.z, p.axis.x, p.axis.y, p.axis.z
+            );
+            joints(out, p.extra());
+        }
+    }
+    if let MotionKind::Arc(a) = m.kind {
+        let (u, v, _) = a.plane.axes();
+        let _ = write!(
+            out,
+            " {} center {}{:.4} {}{:.4}",
+            a.plane.gcode(),
+            u.letter(),
+            a.center[u.index()],
+            v.letter(),
+            a.center[v.index()]
+        );
+        if a.extra_turns > 0 {
+            let _ = write!(out, " turns=+{}", a.extra_turns);
+        }
+    }
+    if !matches!(m.kind, MotionKind::Rapid) || m.feed.rate.is_some() {
+        match m.feed.rate {
+            Some(r) => {
+                let _ = write!(out, " feed={r:.4}");
+            }
+            None => out.push_str(" feed=none"),
+        }
+        out.push_str(match m.feed.mode {
+            FeedMode::PerMinute => "/min",
+            FeedMode::InverseTime => "/inverse-time",
+            FeedMode::PerRevolution => "/rev",
+        });
+    }
+    if m.machine_frame {
+        out.push_str(" machine-frame");
+    }
+    out.push_str(" written=");
+    axes(out, m.written);
+    if !m.extra.is_empty() {
+        let _ = write!(out, " extra={:?}", m.extra);
     }
 }
 

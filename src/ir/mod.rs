@@ -20,7 +20,13 @@
 //! 6. All numbers are finite `f64`.
 
 pub mod dump;
+mod modal;
+mod printed;
+mod track;
 pub mod verify;
+
+pub use modal::{Modal, MotionMode};
+pub use track::{Step, Tracker};
 
 use nalgebra::{Point3, Unit, Vector3};
 
@@ -171,7 +177,7 @@ impl AxisSet {
     }
     /// The axes in index order.
     pub fn iter(self) -> impl Iterator<Item = Axis> {
-        // Bit by bit, lowest first: as many steps as axes in the set, not ten.
+        // Lowest axis first.
         let mut bits = self.0 & AxisSet::ALL.0;
         std::iter::from_fn(move || {
             if bits == 0 {
@@ -213,8 +219,7 @@ impl Joints {
     };
 
     /// The same axes known, at the same values; what unknown axes hold is not compared
-    /// (zero by invariant 3). Cheaper than `==` on the hot paths that ask whether a
-    /// position is the one they saw last.
+    /// (zero by invariant 3).
     ///
     /// ```
     /// use ncpost::ir::{Axis, Joints};
@@ -225,7 +230,6 @@ impl Joints {
     /// b.set(Axis::Y, 0.0);
     /// assert!(!a.same_known(&b));
     /// ```
-    #[inline]
     pub fn same_known(&self, other: &Joints) -> bool {
         self.known == other.known
             && self
@@ -236,10 +240,6 @@ impl Joints {
 
     /// These joints with every axis `update` knows taken from it: where a move to
     /// `update` ends.
-    ///
-    /// One select per axis, without a branch: the result is then copied from whole
-    /// stores (values written one by one at varying indices and then copied wait on
-    /// store forwarding, on every move of the timing passes).
     ///
     /// ```
     /// use ncpost::ir::{Axis, Joints};
@@ -253,7 +253,6 @@ impl Joints {
     /// assert_eq!((end.get(Axis::X), end.get(Axis::Y), end.get(Axis::E)), (Some(1.0), Some(5.0), Some(0.5)));
     /// assert_eq!(end.get(Axis::Z), None);
     /// ```
-    #[inline]
     pub fn updated_by(&self, update: &Joints) -> Joints {
         let mut values = self.values;
         for (k, v) in values.iter_mut().enumerate() {
@@ -595,8 +594,7 @@ pub struct Block {
     pub comments: Vec<Comment>,
 }
 
-// Every pass moves each block at least once; at up to 256 bytes a move is one fixed
-// sequence of vector copies with AVX2 (callgrind: 3.4 % of the polar pipeline at 272).
+// Every pass moves each block at least once: the size bound keeps that cheap.
 #[cfg(target_pointer_width = "64")]
 const _: () = assert!(std::mem::size_of::<Block>() <= 256);
 

@@ -1,5 +1,6 @@
 //! Checks the IR invariants listed in [`crate::ir`] on a block stream.
 
+use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
 
 /// Streaming verifier: feed it blocks in order; it returns the first broken invariant
@@ -16,8 +17,18 @@ use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
 pub struct Verifier;
 
 impl Verifier {
-    /// Checks one block; `Err` names the broken invariant.
-    pub fn check(&mut self, block: &Block) -> Result<(), String> {
+    /// Checks one block; `Err` is the `ir::invariant` error that names the broken
+    /// invariant, at the block's line.
+    pub fn check(&mut self, block: &Block) -> Result<(), Diagnostic> {
+        self.broken(block).map_err(|what| {
+            Diagnostic::error("ir::invariant", format!("IR invariant broken: {what}"))
+                .at_span(block.span)
+                .with_help("a pass before this one produced an invalid block; please report it")
+        })
+    }
+
+    /// The broken invariant of `block`, in words.
+    fn broken(&mut self, block: &Block) -> Result<(), String> {
         if block.span.line == 0 {
             return Err("block has no source line (invariant 1)".into());
         }
@@ -83,26 +94,8 @@ impl Verifier {
     }
 }
 
-// Inlined, the search for the message apart: every block of every run comes here, and a
-// call saved and restored registers around a sweep of a few dozen instructions.
-#[inline(always)]
+/// The first axis of `j` that breaks invariant 3 or 6, as a message.
 fn check_joints(j: &Joints) -> Result<(), String> {
-    // One branch-free sweep, and the axis-by-axis search for the message only when
-    // something is wrong.
-    let mut wrong = false;
-    for (k, v) in j.values.iter().enumerate() {
-        wrong |= !v.is_finite() | ((j.known.0 >> k) & 1 == 0 && *v != 0.0);
-    }
-    if !wrong {
-        return Ok(());
-    }
-    joints_error(j)
-}
-
-/// The message of [`check_joints`] for joints that break an invariant.
-#[cold]
-#[inline(never)]
-fn joints_error(j: &Joints) -> Result<(), String> {
     for a in Axis::ALL {
         let v = j.values[a.index()];
         if !v.is_finite() {
@@ -122,8 +115,7 @@ fn joints_error(j: &Joints) -> Result<(), String> {
 mod tests {
     use super::*;
 
-    /// The sweep lets good joints through and stops every bad one, with the message of
-    /// the first bad axis.
+    /// Good joints pass; bad ones are stopped with the message of the first bad axis.
     #[test]
     fn joints_checks_find_the_first_bad_axis() {
         let mut j = Joints::default();

@@ -1,6 +1,49 @@
-//! Fixed-precision number printing without float formatting on the hot path.
+//! Fixed-precision number printing: the one printer of positions, feeds and times.
+//!
+//! [`Decimals`] says how many digits each kind of value gets; [`to_units`] rounds a value
+//! to them as the controller will read it, and [`write_units`] prints it.
 
-use crate::num::decimal::{POW10_INT, ZEROS};
+use serde::{Deserialize, Serialize};
+
+/// Digits after the decimal point, per kind of value.
+///
+/// What an axis gets is [`Decimals::axis`] (in [`crate::ir`], which knows the axes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Decimals {
+    /// Linear axes and arc offsets, mm.
+    pub linear: u8,
+    /// Rotary axes, degrees.
+    pub rotary: u8,
+    /// The extruder axis, mm.
+    pub extruder: u8,
+    /// Feed rates.
+    pub feed: u8,
+}
+
+impl Default for Decimals {
+    fn default() -> Self {
+        Decimals {
+            linear: 3,
+            rotary: 3,
+            extruder: 5,
+            feed: 1,
+        }
+    }
+}
+
+/// Keeps `value` and its printed form as the `seen` pair that the next rounding of the
+/// same value reuses (see `Decimals::printed_joints`).
+///
+/// ```
+/// use ncpost::num::print::remember_printed;
+/// let mut seen = None;
+/// remember_printed(&mut seen, 1.2345, 1.235);
+/// assert_eq!(seen, Some((1.2345, 1.235)));
+/// ```
+pub fn remember_printed<T>(seen: &mut Option<(T, T)>, value: T, printed: T) {
+    *seen = Some((value, printed));
+}
 
 /// Rounds `value` to `decimals` places as an integer count of units (`10^-decimals`).
 ///
@@ -17,17 +60,17 @@ pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
     if !(x.is_finite() && x.abs() < 9e15) {
         return None;
     }
-    // `f64::round` (half away from zero) without the libm call: below 2^53 the
-    // truncation is exact and so is the fraction left over.
-    // The carry is added, not branched on: on coordinates it is a coin toss, and the
-    // mispredicted branch stalled every pass that rounds to printed values.
+    // Half away from zero, as `f64::round`: below 2^53 the truncation is exact and so
+    // is the fraction left over.
     let whole = x as i64;
     let fraction = x - whole as f64;
-    // `fraction >= 0.5` is `fraction - 0.5` not negative (an exact 0.5 gives +0.0), read
-    // off the sign bit so that the compiler keeps it arithmetic.
-    let up = 1 - ((fraction - 0.5).to_bits() >> 63) as i64;
-    let down = 1 - ((-0.5 - fraction).to_bits() >> 63) as i64;
-    Some(whole + up - down)
+    Some(if fraction >= 0.5 {
+        whole + 1
+    } else if fraction <= -0.5 {
+        whole - 1
+    } else {
+        whole
+    })
 }
 
 /// `value` as the controller reads it when printed at `decimals` places (at most 9):
@@ -38,7 +81,6 @@ pub fn to_units(value: f64, decimals: u8) -> Option<i64> {
 /// assert_eq!(printed(1.23456, 3), Some(1.235));
 /// assert_eq!(printed(f64::INFINITY, 3), None);
 /// ```
-#[inline]
 pub fn printed(value: f64, decimals: u8) -> Option<f64> {
     to_units(value, decimals).map(|u| from_units(u, decimals))
 }
@@ -50,7 +92,6 @@ pub fn printed(value: f64, decimals: u8) -> Option<f64> {
 /// use ncpost::num::print::from_units;
 /// assert_eq!(from_units(-1235, 3), -1.235);
 /// ```
-#[inline]
 pub fn from_units(units: i64, decimals: u8) -> f64 {
     units as f64 / POW10[usize::from(decimals.min(9))]
 }
@@ -58,93 +99,14 @@ pub fn from_units(units: i64, decimals: u8) -> f64 {
 /// `10^d` for the decimals a number is printed with (at most 9), exact.
 const POW10: [f64; 10] = [1.0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9];
 
-/// The bytes a number may take while it is built in place: a two-byte lead, a sign, 20
-/// digits, the point, 9 decimals, and the slack of the last 8-byte store.
+/// The bytes a number may take: a two-byte lead, a sign, 20 digits, the point and 9
+/// decimals.
 pub(crate) const ROOM: usize = 40;
 
-/// The number of decimal digits of `x` (1 for 0), without a loop or a branch.
-#[inline(always)]
-fn decimal_len(x: u32) -> usize {
-    // `x | 1` has as many digits as `x` (no power of ten is odd) and is never 0.
-    let x = x | 1;
-    let t = ((32 - x.leading_zeros()) * 1233) >> 12;
-    t as usize + 1 - usize::from(u64::from(x) < POW10_INT[t as usize])
-}
-
-/// The eight decimal digits of `x` (below 10^8) as byte values 0..=9, the most
-/// significant in the lowest byte (first in memory): in registers, by multiplications,
-/// so that a number is stored in one move.
-#[inline(always)]
-fn digit_bytes(x: u32) -> u64 {
-    let x = u64::from(x);
-    // Four digits per 32-bit lane, then two per 16-bit lane, then one per byte: n / 100
-    // is (n * 5243) >> 19 below 43699, n / 10 is (n * 103) >> 10 below 100.
-    let v = (x / 10_000) | ((x % 10_000) << 32);
-    let hundreds = ((v * 5243) >> 19) & 0x0000_007F_0000_007F;
-    let v = hundreds | ((v - hundreds * 100) << 16);
-    let tens = ((v * 103) >> 10) & 0x000F_000F_000F_000F;
-    tens | ((v - tens * 10) << 8)
-}
-
-/// The four decimal digits of `x` (below 10^4) as byte values, like [`digit_bytes`]:
-/// most numbers printed have at most four digits before and after the point.
-#[inline(always)]
-fn digit_bytes4(x: u32) -> u64 {
-    let hundreds = (x * 5243) >> 19;
-    let v = hundreds | ((x - hundreds * 100) << 16);
-    let tens = ((v * 103) >> 10) & 0x000F_000F;
-    u64::from(tens | ((v - tens * 10) << 8))
-}
-
-/// Stores the eight bytes of `v` at `buf[at..at + 8]`.
-#[inline(always)]
-fn store8(buf: &mut [u8], at: usize, v: u64) {
-    buf[at..at + 8].copy_from_slice(&v.to_le_bytes());
-}
-
-/// Puts the digits of `whole` at `buf[at..]` and returns where they end. Bytes after
-/// the end may be overwritten (up to 8 past it).
-#[inline(always)]
-fn put_whole(buf: &mut [u8], at: usize, whole: u64) -> usize {
-    if whole < 10_000 {
-        let n = decimal_len(whole as u32);
-        // Only the low four bytes are digits.
-        store8(
-            buf,
-            at,
-            (digit_bytes4(whole as u32) | (ZEROS & 0xFFFF_FFFF)) >> (8 * (4 - n)),
-        );
-        at + n
-    } else if whole < 100_000_000 {
-        let n = decimal_len(whole as u32);
-        // The leading zeros of the eight digits are shifted out.
-        store8(
-            buf,
-            at,
-            (digit_bytes(whole as u32) | ZEROS) >> (8 * (8 - n)),
-        );
-        at + n
-    } else {
-        put_long_whole(buf, at, whole)
-    }
-}
-
-/// [`put_whole`] from 10^8 on: the last eight digits after the others.
-#[cold]
-#[inline(never)]
-fn put_long_whole(buf: &mut [u8], at: usize, whole: u64) -> usize {
-    let at = put_whole(buf, at, whole / 100_000_000);
-    store8(buf, at, digit_bytes((whole % 100_000_000) as u32) | ZEROS);
-    at + 8
-}
-
 /// Puts `lead[..lead_len]` (at most two ASCII bytes, such as `" X"`) and
-/// `units * 10^-decimals` (decimals at most 9) at the start of `buf` (at least
-/// [`ROOM`] bytes, which it may overwrite), trailing zeros trimmed when `trim` is set;
-/// returns the length. The number is built where it ends up, with a few
-/// whole-register stores: built on the side and copied, its bytes were read back
-/// before their narrow stores had landed, and the emitter stalled on every word.
-#[inline(always)]
+/// `units * 10^-decimals` (decimals at most 9; more print as 9) at the start of `buf`
+/// (at least [`ROOM`] bytes), trailing zeros trimmed when `trim` is set; returns the
+/// length.
 pub(crate) fn put_number(
     buf: &mut [u8],
     lead: [u8; 2],
@@ -153,67 +115,35 @@ pub(crate) fn put_number(
     decimals: u8,
     trim: bool,
 ) -> usize {
-    // One body per precision: the divisor and the number of fraction digits are
-    // constants there.
-    match decimals {
-        0 => put_fixed::<0>(buf, lead, lead_len, units, trim),
-        1 => put_fixed::<1>(buf, lead, lead_len, units, trim),
-        2 => put_fixed::<2>(buf, lead, lead_len, units, trim),
-        3 => put_fixed::<3>(buf, lead, lead_len, units, trim),
-        4 => put_fixed::<4>(buf, lead, lead_len, units, trim),
-        5 => put_fixed::<5>(buf, lead, lead_len, units, trim),
-        6 => put_fixed::<6>(buf, lead, lead_len, units, trim),
-        7 => put_fixed::<7>(buf, lead, lead_len, units, trim),
-        8 => put_fixed::<8>(buf, lead, lead_len, units, trim),
-        _ => put_fixed::<9>(buf, lead, lead_len, units, trim),
-    }
-}
-
-/// [`put_number`] at `FRAC` decimals (at most 9).
-#[inline(always)]
-fn put_fixed<const FRAC: usize>(
-    buf: &mut [u8],
-    lead: [u8; 2],
-    lead_len: usize,
-    units: i64,
-    trim: bool,
-) -> usize {
+    let frac_digits = usize::from(decimals.min(9));
     let u = units.unsigned_abs();
-    // A constant divisor: a multiplication, not a 64-bit `div`.
-    let p = 10u64.pow(FRAC as u32);
-    let (whole, fraction) = (u / p, u % p);
-    buf[..2].copy_from_slice(&lead);
+    let scale = 10u64.pow(frac_digits as u32);
+    let (whole, mut fraction) = (u / scale, u % scale);
+    buf[..lead_len].copy_from_slice(&lead[..lead_len]);
     let mut at = lead_len;
-    // The sign is always stored and kept only for a negative number.
-    buf[at] = b'-';
-    at += usize::from(units < 0);
-    at = put_whole(buf, at, whole);
-    if FRAC > 0 {
+    if units < 0 {
+        buf[at] = b'-';
+        at += 1;
+    }
+    let mut digits = itoa::Buffer::new();
+    let whole = digits.format(whole).as_bytes();
+    buf[at..at + whole.len()].copy_from_slice(whole);
+    at += whole.len();
+    let mut kept = frac_digits;
+    if trim {
+        while kept > 0 && fraction % 10 == 0 {
+            fraction /= 10;
+            kept -= 1;
+        }
+    }
+    // The point goes only with digits after it.
+    if kept > 0 {
         buf[at] = b'.';
-        // The fraction's digits, and how many of them are trailing zeros.
-        let zeros = if FRAC == 9 {
-            let first = (fraction / 100_000_000) as u8;
-            let rest = digit_bytes((fraction % 100_000_000) as u32);
-            buf[at + 1] = b'0' + first;
-            store8(buf, at + 2, rest | ZEROS);
-            if rest == 0 {
-                8 + usize::from(first == 0)
-            } else {
-                rest.leading_zeros() as usize / 8
-            }
-        } else {
-            // Below 10^FRAC: the top 8 - FRAC digits are zeros, shifted out.
-            let digits = if FRAC <= 4 {
-                digit_bytes4(fraction as u32) >> (8 * (4 - FRAC))
-            } else {
-                digit_bytes(fraction as u32) >> (8 * (8 - FRAC))
-            };
-            store8(buf, at + 1, digits | ZEROS);
-            digits.leading_zeros() as usize / 8 - (8 - FRAC)
-        };
-        let kept = if trim { FRAC - zeros } else { FRAC };
-        // The point goes only with digits after it.
-        at += kept + usize::from(kept > 0);
+        for slot in buf[at + 1..at + 1 + kept].iter_mut().rev() {
+            *slot = b'0' + (fraction % 10) as u8;
+            fraction /= 10;
+        }
+        at += 1 + kept;
     }
     at
 }
@@ -285,44 +215,6 @@ mod tests {
             }
         }
         s
-    }
-
-    #[test]
-    fn digit_counts_and_digit_bytes_hold_for_every_number_below_10_to_the_8() {
-        // Every 997th number and every one next to a power of ten.
-        let edges = (0..9).flat_map(|k| {
-            let p = 10u32.pow(k);
-            [p.saturating_sub(1), p, p + 1]
-        });
-        for x in (0..100_000_000)
-            .step_by(997)
-            .chain(edges.filter(|&x| x < 100_000_000))
-        {
-            let text = x.to_string();
-            assert_eq!(decimal_len(x), text.len(), "{x}");
-            let want = format!("{x:08}")
-                .bytes()
-                .map(|b| b - b'0')
-                .collect::<Vec<_>>();
-            assert_eq!(digit_bytes(x).to_le_bytes().to_vec(), want, "{x}");
-        }
-        for x in 0..10_000 {
-            let want = format!("{x:04}")
-                .bytes()
-                .map(|b| b - b'0')
-                .collect::<Vec<_>>();
-            assert_eq!(digit_bytes4(x).to_le_bytes()[..4], want, "{x}");
-            assert_eq!(digit_bytes4(x) >> 32, 0, "{x}");
-        }
-        for x in [
-            100_000_000,
-            100_000_001,
-            999_999_999,
-            1_000_000_000,
-            u32::MAX,
-        ] {
-            assert_eq!(decimal_len(x), x.to_string().len(), "{x}");
-        }
     }
 
     #[test]

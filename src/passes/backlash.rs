@@ -160,7 +160,7 @@ pub struct Backlash {
     feed: Option<f64>,
     start: Start,
     /// Programmed (IR) position after the last block.
-    pos: Joints,
+    track: crate::ir::Tracker,
     /// Arc and pose errors reported (only the first few are shown).
     errors: usize,
 }
@@ -171,27 +171,27 @@ const DIAG_CAP: usize = 10;
 impl Backlash {
     /// The pass with `options`: amounts finite and `>= 0`, at least one `> 0`; a `feed`
     /// finite and `> 0`.
-    pub fn new(options: Options) -> Result<Backlash, String> {
+    pub fn new(options: Options) -> Result<Backlash, Diagnostic> {
         let amounts = [options.x, options.y, options.z];
         for (a, v) in AXES.iter().zip(amounts) {
             if !(v.is_finite() && v >= 0.0) {
-                return Err(format!(
+                return Err(Diagnostic::settings(format!(
                     "{} = {v}: the backlash must be a number of mm >= 0",
                     a.letter().to_ascii_lowercase()
-                ));
+                )));
             }
         }
         if amounts.iter().all(|&v| v == 0.0) {
-            return Err(
-                "every backlash amount is 0: give the slack per axis in mm, for example --pass backlash:x=0.02,y=0.02".into(),
-            );
+            return Err(Diagnostic::settings(
+                "every backlash amount is 0: give the slack per axis in mm, for example --pass backlash:x=0.02,y=0.02",
+            ));
         }
         if let Some(f) = options.feed
             && !(f.is_finite() && f > 0.0)
         {
-            return Err(format!(
+            return Err(Diagnostic::settings(format!(
                 "feed = {f}: the take-up feed must be a number of mm/min > 0"
-            ));
+            )));
         }
         let mut axes = [AxisState::default(); 3];
         for (s, v) in axes.iter_mut().zip(amounts) {
@@ -201,7 +201,7 @@ impl Backlash {
             axes,
             feed: options.feed,
             start: options.start,
-            pos: Joints::default(),
+            track: crate::ir::Tracker::default(),
             errors: 0,
         })
     }
@@ -249,7 +249,7 @@ impl Backlash {
                 && (a == u
                     || a == v
                     || (a == n
-                        && match (self.pos.get(n), to.get(n)) {
+                        && match (self.track.pos().get(n), to.get(n)) {
                             (Some(p), Some(q)) => (q - p).abs() > EPS,
                             _ => true,
                         }))
@@ -258,7 +258,7 @@ impl Backlash {
 
     /// A straight move (or rapid) to `to`: the take-up, if any, then the shifted move.
     fn straight(&mut self, block: Block, mut m: Motion, to: Joints, out: &mut Output<'_>) {
-        let from = self.pos;
+        let from = *self.track.pos();
         let mut reversing = AxisSet::EMPTY;
         for (i, a) in AXES.into_iter().enumerate() {
             let s = &mut self.axes[i];
@@ -334,7 +334,7 @@ impl Backlash {
             ));
             m.written = m.written.union(reversing);
         }
-        self.pos = to;
+        self.track.set_pos(to);
         let mut sent = to;
         self.shift(&mut sent);
         m.target = Target::Joints(sent);
@@ -374,7 +374,7 @@ impl Backlash {
                     return;
                 };
                 // Axes that became unknown lose their state.
-                self.reset(self.pos.known.difference(to.known));
+                self.reset(self.track.pos().known.difference(to.known));
                 if let MotionKind::Arc(arc) = &mut m.kind {
                     if self.arc_compensated(arc, &to) {
                         self.error(out, || {
@@ -396,7 +396,7 @@ impl Backlash {
                     let mut sent = to;
                     self.shift(&mut sent);
                     m.target = Target::Joints(sent);
-                    self.pos = to;
+                    self.track.set_pos(to);
                     out.push(block);
                     return;
                 }
@@ -406,7 +406,7 @@ impl Backlash {
             }
             BlockKind::Offset(o) if o.code == OffsetCode::Set => {
                 for (s, a) in self.axes.iter().zip(AXES) {
-                    if o.declared.known.contains(a) && self.pos.get(a).is_some() {
+                    if o.declared.known.contains(a) && self.track.pos().get(a).is_some() {
                         // The controller is told where the motor is.
                         o.declared.values[a.index()] += s.offset;
                     }
@@ -418,7 +418,7 @@ impl Backlash {
         }
         // The programmed position, as every pass keeps it (the adjusted G92 values only
         // change axes whose position was known, which it leaves alone).
-        super::linearize_arcs::track(&mut self.pos, &block);
+        self.track.update(&block);
         out.push(block);
     }
 }

@@ -146,7 +146,7 @@ pub struct Heightmap {
     map: HeightMap,
     options: Options,
     /// The IR (uncompensated) position after the last block.
-    pos: Joints,
+    track: crate::ir::Tracker,
     /// Diagnostics per code so far.
     counts: BTreeMap<&'static str, usize>,
     /// Vertices of the move being cut (reused).
@@ -154,8 +154,9 @@ pub struct Heightmap {
 }
 
 /// Reads a map file in `format`.
-pub fn read_map(path: &str, format: MapFormat) -> Result<HeightMap, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read `{path}`: {e}"))?;
+pub fn read_map(path: &str, format: MapFormat) -> Result<HeightMap, Diagnostic> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Diagnostic::settings(format!("cannot read `{path}`: {e}")))?;
     let map = match format {
         MapFormat::Auto => HeightMap::parse(&text),
         MapFormat::Rrf => HeightMap::parse_rrf(&text),
@@ -163,23 +164,25 @@ pub fn read_map(path: &str, format: MapFormat) -> Result<HeightMap, String> {
         MapFormat::GrblLog => HeightMap::parse_grbl_log(&text),
         MapFormat::Csv => HeightMap::parse_csv(&text),
     };
-    map.map_err(|e| format!("`{path}`: {e}"))
+    map.map_err(|e| Diagnostic::settings(format!("`{path}`: {}", e.message)))
 }
 
 impl Heightmap {
     /// The pass with the map file named in `options`.
-    pub fn from_file(options: Options) -> Result<Heightmap, String> {
+    pub fn from_file(options: Options) -> Result<Heightmap, Diagnostic> {
         if options.map.is_empty() {
-            return Err("set the height map file: --pass heightmap:map=heightmap.csv".into());
+            return Err(Diagnostic::settings(
+                "set the height map file: --pass heightmap:map=heightmap.csv",
+            ));
         }
         let map = read_map(&options.map, options.format)?;
         Heightmap::with_map(map, options)
     }
 
     /// The pass with an already read map (`options.map` is not read).
-    pub fn with_map(mut map: HeightMap, options: Options) -> Result<Heightmap, String> {
+    pub fn with_map(mut map: HeightMap, options: Options) -> Result<Heightmap, Diagnostic> {
         if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
-            return Err("tolerance must be a number > 0".into());
+            return Err(Diagnostic::settings("tolerance must be a number > 0"));
         }
         if options.unprobed == Unprobed::Nearest {
             map.fill_nearest()?;
@@ -187,7 +190,7 @@ impl Heightmap {
         Ok(Heightmap {
             map,
             options,
-            pos: Joints::default(),
+            track: crate::ir::Tracker::default(),
             counts: BTreeMap::new(),
             pieces: Vec::new(),
         })
@@ -349,7 +352,7 @@ impl Heightmap {
     /// One block of the input: puts out what becomes of it.
     fn block(&mut self, block: Block, out: &mut Output<'_>) {
         let BlockKind::Motion(m) = &block.kind else {
-            super::linearize_arcs::track(&mut self.pos, &block);
+            self.track.update(&block);
             out.push(block);
             return;
         };
@@ -359,7 +362,7 @@ impl Heightmap {
                     .at_span(block.span)
                     .with_help("put linearize-arcs before heightmap: --pass linearize-arcs --pass heightmap:map=FILE")
             });
-            super::linearize_arcs::track(&mut self.pos, &block);
+            self.track.update(&block);
             out.push(block);
             return;
         }
@@ -376,7 +379,7 @@ impl Heightmap {
                         .with_help("put heightmap after ik")
                     });
                 }
-                super::linearize_arcs::track(&mut self.pos, &block);
+                self.track.update(&block);
                 out.push(block);
                 return;
             }
@@ -394,19 +397,19 @@ impl Heightmap {
                 .with_help("start the program with a move to absolute X, Y and Z (the first such move is reported)")
             });
             self.counts.insert("heightmap::unknown", DIAG_CAP + 1);
-            self.pos = to;
+            self.track.set_pos(to);
             out.push(block);
             return;
         }
-        let from = self.pos;
+        let from = *self.track.pos();
         let start_known = from.known.contains(Axis::X) && from.known.contains(Axis::Y);
         if let Err((what, x, y)) = self.cut(&from, &to, start_known) {
             self.missing(what, x, y, &block, out);
-            self.pos = to;
+            self.track.set_pos(to);
             out.push(block);
             return;
         }
-        self.pos = to;
+        self.track.set_pos(to);
         let Block {
             span,
             kind,

@@ -39,7 +39,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Block, BlockKind, FeedMode, Joints, MotionKind, OffsetCode, Target};
+use crate::ir::{Block, BlockKind, FeedMode, MotionKind, Target, Tracker};
 use crate::motion::arc::ArcPath;
 
 /// Options of `linearize-arcs`.
@@ -68,40 +68,19 @@ pub const INFO: PassInfo = PassInfo {
 pub struct LinearizeArcs {
     options: Options,
     /// The position after the last block (IR frame).
-    pos: Joints,
+    track: Tracker,
 }
 
 impl LinearizeArcs {
     /// The pass with `options` (the tolerance must be a number > 0).
-    pub fn new(options: Options) -> Result<LinearizeArcs, String> {
+    pub fn new(options: Options) -> Result<LinearizeArcs, Diagnostic> {
         if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
-            return Err("tolerance must be a number > 0".into());
+            return Err(Diagnostic::settings("tolerance must be a number > 0"));
         }
         Ok(LinearizeArcs {
             options,
-            pos: Joints::default(),
+            track: Tracker::default(),
         })
-    }
-}
-
-/// Follows the IR position through a block: motion targets, G53 moves and commands that
-/// make axes unknown, and G92 declarations of unknown axes.
-pub(crate) fn track(pos: &mut Joints, block: &Block) {
-    match &block.kind {
-        BlockKind::Motion(m) => match m.target.joints() {
-            Some(j) if !m.machine_frame => *pos = *j,
-            _ => pos.forget(m.written),
-        },
-        BlockKind::Command(c) => pos.forget(c.clobbers),
-        BlockKind::Verbatim(v) => pos.forget(v.clobbers),
-        BlockKind::Offset(o) if o.code == OffsetCode::Set => {
-            for a in o.declared.known.iter() {
-                if pos.get(a).is_none() {
-                    pos.set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
-                }
-            }
-        }
-        _ => {}
     }
 }
 
@@ -109,17 +88,17 @@ impl LinearizeArcs {
     /// One block of the input: puts out what becomes of it.
     fn block(&mut self, block: Block, out: &mut Output<'_>) {
         let BlockKind::Motion(m) = &block.kind else {
-            track(&mut self.pos, &block);
+            self.track.update(&block);
             out.push(block);
             return;
         };
         let MotionKind::Arc(arc) = m.kind else {
-            track(&mut self.pos, &block);
+            self.track.update(&block);
             out.push(block);
             return;
         };
         let path = match &m.target {
-            Target::Joints(to) if !m.machine_frame => ArcPath::new(&self.pos, to, &arc),
+            Target::Joints(to) if !m.machine_frame => ArcPath::new(self.track.pos(), to, &arc),
             _ => None,
         };
         let Some(path) = path else {
@@ -131,7 +110,7 @@ impl LinearizeArcs {
                 .at_span(block.span)
                 .with_help("move to absolute positions in the arc's plane before the arc"),
             );
-            track(&mut self.pos, &block);
+            self.track.update(&block);
             out.push(block);
             return;
         };
@@ -164,7 +143,7 @@ impl LinearizeArcs {
             }
             out.push(b);
         }
-        self.pos = path.to;
+        self.track.set_pos(path.to);
     }
 }
 

@@ -37,7 +37,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, OffsetCode, Target};
+use crate::ir::{Axis, Block, BlockKind, MotionKind, OffsetCode, Target};
 use crate::motion::arc::ArcPath;
 
 /// The axis `mirror` changes the sign of.
@@ -79,15 +79,15 @@ pub struct Mirror {
     /// The largest value seen on the axis.
     max: f64,
     /// The IR position before the current block (for arc extents).
-    pos: Joints,
+    track: crate::ir::Tracker,
     warned: bool,
 }
 
 impl Mirror {
     /// The pass with `options` (a given shift must be finite).
-    pub fn new(options: Options) -> Result<Mirror, String> {
+    pub fn new(options: Options) -> Result<Mirror, Diagnostic> {
         if options.shift.is_some_and(|s| !s.is_finite()) {
-            return Err("shift must be a number".into());
+            return Err(Diagnostic::settings("shift must be a number"));
         }
         Ok(Mirror {
             axis: match options.axis {
@@ -97,7 +97,7 @@ impl Mirror {
             shift: options.shift,
             held: Vec::new(),
             max: f64::NEG_INFINITY,
-            pos: Joints::default(),
+            track: crate::ir::Tracker::default(),
             warned: false,
         })
     }
@@ -116,7 +116,7 @@ impl Mirror {
                 self.max = self.max.max(v);
             }
             if let (MotionKind::Arc(arc), Target::Joints(to)) = (m.kind, &m.target)
-                && let Some(path) = ArcPath::new(&self.pos, to, &arc)
+                && let Some(path) = ArcPath::new(self.track.pos(), to, &arc)
             {
                 // The angle (in the plane) where the axis is largest.
                 let target = if path.u == a {
@@ -144,7 +144,7 @@ impl Mirror {
                 }
             }
         }
-        crate::passes::linearize_arcs::track(&mut self.pos, block);
+        self.track.update(block);
     }
 
     /// Mirrors one block to `shift - a`.

@@ -25,10 +25,10 @@ pub mod verify;
 
 use serde::de::DeserializeOwned;
 
-use crate::back::Decimals;
 use crate::diag::Diagnostic;
 use crate::ir::Block;
 use crate::machine::Machine;
+use crate::num::print::Decimals;
 
 /// What a pass may know about the pipeline it runs in besides its own options.
 #[derive(Debug, Clone, Copy, Default)]
@@ -43,6 +43,10 @@ pub struct Context<'a> {
     /// The run-wide timing model (`--timing`), overriding the controller's and the
     /// passes' own (see [`crate::motion::resolve_timing`]).
     pub timing: Option<crate::motion::Timing>,
+    /// Makes the G-code lowerer `expand-subprograms` lowers subprogram bodies with (the
+    /// pipeline's is [`crate::pipeline::gcode_relower`]; passes do not depend on the
+    /// frontends).
+    pub relower: Option<expand_subprograms::lower::Relower>,
 }
 
 impl<'a> Context<'a> {

@@ -50,8 +50,8 @@ use serde::{Deserialize, Serialize};
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Comment, CommentStyle, Joints, OffsetCode,
-    WrittenModes,
+    Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, OffsetChange, OffsetCode,
+    Span, Tracker, Verbatim, WrittenModes,
 };
 
 /// Options of `normalize` (none).
@@ -75,12 +75,11 @@ const MM_PER_INCH: f64 = 25.4;
 /// The `normalize` pass.
 #[derive(Debug, Default)]
 pub struct Normalize {
-    /// The IR position.
-    pos: Joints,
+    /// The IR position and the G92 offsets in force in the source (program = IR +
+    /// offset).
+    track: Tracker,
     /// Axes that have been known at some point.
     ever_known: AxisSet,
-    /// The G92 offsets in force in the source (program = IR + offset).
-    offsets: [f64; AXIS_COUNT],
 }
 
 /// One `letter value` word of a command's text.
@@ -143,7 +142,7 @@ impl Normalize {
 
     fn offset_in_use(&self, text: &str) -> bool {
         Axis::ALL.iter().any(|a| {
-            self.offsets[a.index()] != 0.0 && crate::num::lexer::has_word(text, a.letter())
+            self.track.offsets()[a.index()] != 0.0 && crate::num::lexer::has_word(text, a.letter())
         })
     }
 
@@ -168,7 +167,7 @@ impl Normalize {
                     let scale = if axis.is_rotary() { 1.0 } else { unit };
                     let mm = v * scale;
                     let ir = if modes.relative {
-                        match self.pos.get(axis) {
+                        match self.track.pos().get(axis) {
                             Some(p) => p + mm,
                             None => {
                                 return Err(Diagnostic::error(
@@ -183,7 +182,7 @@ impl Normalize {
                             }
                         }
                     } else {
-                        mm - self.offsets[axis.index()]
+                        mm - self.track.offsets()[axis.index()]
                     };
                     words.push(format!("{}{}", axis.letter(), fmt_num(ir)));
                 }
@@ -214,161 +213,168 @@ impl Normalize {
         let span = block.span;
         match &mut block.kind {
             BlockKind::Offset(change) => {
-                let written: Vec<String> = change
-                    .declared
-                    .known
-                    .iter()
-                    .map(|a| {
-                        format!(
-                            "{}{}",
-                            a.letter(),
-                            fmt_num(change.declared.values[a.index()])
-                        )
-                    })
-                    .collect();
-                let code = change.code;
-                let what = if written.is_empty() {
-                    code.gcode().to_string()
-                } else {
-                    format!("{} {}", code.gcode(), written.join(" "))
-                };
-                let mut declares = Vec::new();
-                if code == OffsetCode::Set {
-                    for a in change.declared.known.iter() {
-                        if self.pos.get(a).is_some() {
-                            continue;
-                        }
-                        if self.ever_known.contains(a) {
-                            out.diag(
-                                Diagnostic::error(
-                                    "normalize::g92-unknown",
-                                    format!(
-                                        "`{what}` declares {} after its position became unknown; the frame it defines cannot be folded into the output's",
-                                        a.letter()
-                                    ),
-                                )
-                                .at_span(span)
-                                .with_help("move the axis to an absolute position before the G92 (so it shifts a known frame), or leave normalize out to keep the G92"),
-                            );
-                        }
-                        declares.push(a);
-                        self.pos.set(
-                            a,
-                            change.declared.values[a.index()] - change.offsets[a.index()],
-                        );
-                        self.ever_known.insert(a);
-                    }
-                }
-                self.offsets = change.offsets;
-                let text = if declares.is_empty() {
-                    format!("`{what}` folded into the coordinates")
-                } else {
-                    let axes: String = declares.iter().map(|a| a.letter()).collect();
-                    format!(
-                        "`{what}` removed: it declares the origin of {axes} here; set the work origin at this position"
-                    )
-                };
+                let note = self.offset(change, span, out);
                 let comments = std::mem::take(&mut block.comments);
                 let mut b = Block {
                     span: block.span,
                     kind: BlockKind::Comment,
                     comments,
                 };
-                Self::note(&mut b, text);
+                Self::note(&mut b, note);
                 out.push(b);
                 return;
             }
-            BlockKind::Motion(m) => match m.target.joints() {
-                Some(j) if !m.machine_frame => {
-                    self.pos = *j;
-                    self.ever_known = self.ever_known.union(j.known);
-                }
-                _ => self.pos.forget(m.written),
-            },
-            BlockKind::Command(cmd) => {
-                if let Some(modes) = cmd.modes {
-                    let odd = modes.inch || modes.relative || self.offset_in_use(&cmd.text);
-                    if odd {
-                        let codes = g_codes(&cmd.text);
-                        let positional = !codes.is_empty()
-                            && codes.iter().all(|&c| {
-                                c == 28.0
-                                    || c == 30.0
-                                    || (c > 38.0 && c < 39.0)
-                                    || c == 90.0
-                                    || c == 91.0
-                                    || c == 20.0
-                                    || c == 21.0
-                            })
-                            && codes
-                                .iter()
-                                .any(|&c| c == 28.0 || c == 30.0 || (c > 38.0 && c < 39.0));
-                        if !positional {
-                            out.diag(
-                                Diagnostic::error(
-                                    "normalize::command",
-                                    format!(
-                                        "`{}` has coordinates written in {}; normalize cannot rewrite this command",
-                                        cmd.text,
-                                        if modes.inch { "inches" } else if modes.relative { "relative mode (G91)" } else { "a G92-shifted frame" }
-                                    ),
-                                )
-                                .at_span(span)
-                                .with_help("only G28, G30 and G38.x positions are rewritten; write this line in G21 G90 without G92, or leave normalize out"),
-                            );
-                        } else {
-                            match self.rewrite_command(&cmd.text, modes, span) {
-                                Ok(t) => {
-                                    cmd.text = t.into();
-                                    cmd.modes = Some(WrittenModes {
-                                        inch: false,
-                                        relative: false,
-                                        ..modes
-                                    });
-                                }
-                                Err(d) => out.diag(d),
-                            }
-                        }
-                    }
-                }
-                self.pos.forget(cmd.clobbers);
+            BlockKind::Motion(m) => {
+                self.track.motion(m);
+                self.ever_known = self.ever_known.union(self.track.pos().known);
             }
-            BlockKind::Verbatim(v) => {
-                let codes = g_codes(&v.text);
-                let mode_codes = codes
-                    .iter()
-                    .any(|&c| c == 20.0 || c == 91.0 || (92.0..93.0).contains(&c));
-                let axes = has_axis_word(&v.text);
-                let odd_modes = v.modes.is_some_and(|m| m.inch || m.relative);
-                let shifted = self.offset_in_use(&v.text);
-                if mode_codes || (axes && (odd_modes || shifted)) {
-                    out.diag(
-                        Diagnostic::error(
-                            "normalize::verbatim",
-                            format!(
-                                "`{}` passes through as text and {}; normalize cannot rewrite it",
-                                v.text,
-                                if mode_codes {
-                                    "holds G20, G91 or G92"
-                                } else if odd_modes {
-                                    "has axis words in inches or relative mode"
-                                } else {
-                                    "has axis words in a G92-shifted frame"
-                                }
-                            ),
-                        )
-                        .at_span(span)
-                        .with_help("write the line in G21 G90 with plain numbers (no parameters or expressions), or leave normalize out"),
-                    );
-                } else if let Some(m) = &mut v.modes {
-                    m.inch = false;
-                    m.relative = false;
-                }
-                self.pos.forget(v.clobbers);
-            }
+            BlockKind::Command(cmd) => self.command(cmd, span, out),
+            BlockKind::Verbatim(v) => self.verbatim(v, span, out),
             _ => {}
         }
         out.push(block);
+    }
+
+    /// Folds a G92-family change into the coordinates; returns the note that takes its
+    /// place.
+    fn offset(&mut self, change: &OffsetChange, span: Span, out: &mut Output<'_>) -> String {
+        let written: Vec<String> = change
+            .declared
+            .known
+            .iter()
+            .map(|a| {
+                format!(
+                    "{}{}",
+                    a.letter(),
+                    fmt_num(change.declared.values[a.index()])
+                )
+            })
+            .collect();
+        let code = change.code;
+        let what = if written.is_empty() {
+            code.gcode().to_string()
+        } else {
+            format!("{} {}", code.gcode(), written.join(" "))
+        };
+        let mut declares = Vec::new();
+        if code == OffsetCode::Set {
+            for a in change.declared.known.iter() {
+                if self.track.pos().get(a).is_some() {
+                    continue;
+                }
+                if self.ever_known.contains(a) {
+                    out.diag(
+                        Diagnostic::error(
+                            "normalize::g92-unknown",
+                            format!(
+                                "`{what}` declares {} after its position became unknown; the frame it defines cannot be folded into the output's",
+                                a.letter()
+                            ),
+                        )
+                        .at_span(span)
+                        .with_help("move the axis to an absolute position before the G92 (so it shifts a known frame), or leave normalize out to keep the G92"),
+                    );
+                }
+                declares.push(a);
+                self.ever_known.insert(a);
+            }
+        }
+        self.track.offset(change);
+        if declares.is_empty() {
+            format!("`{what}` folded into the coordinates")
+        } else {
+            let axes: String = declares.iter().map(|a| a.letter()).collect();
+            format!(
+                "`{what}` removed: it declares the origin of {axes} here; set the work origin at this position"
+            )
+        }
+    }
+
+    /// Rewrites the coordinates of a positional command (G28, G30, G38.x) into the
+    /// output's modes, or reports one it cannot rewrite.
+    fn command(&mut self, cmd: &mut Command, span: Span, out: &mut Output<'_>) {
+        if let Some(modes) = cmd.modes {
+            let odd = modes.inch || modes.relative || self.offset_in_use(&cmd.text);
+            if odd {
+                let codes = g_codes(&cmd.text);
+                let positional = !codes.is_empty()
+                    && codes.iter().all(|&c| {
+                        c == 28.0
+                            || c == 30.0
+                            || (c > 38.0 && c < 39.0)
+                            || c == 90.0
+                            || c == 91.0
+                            || c == 20.0
+                            || c == 21.0
+                    })
+                    && codes
+                        .iter()
+                        .any(|&c| c == 28.0 || c == 30.0 || (c > 38.0 && c < 39.0));
+                if !positional {
+                    out.diag(
+                        Diagnostic::error(
+                            "normalize::command",
+                            format!(
+                                "`{}` has coordinates written in {}; normalize cannot rewrite this command",
+                                cmd.text,
+                                if modes.inch { "inches" } else if modes.relative { "relative mode (G91)" } else { "a G92-shifted frame" }
+                            ),
+                        )
+                        .at_span(span)
+                        .with_help("only G28, G30 and G38.x positions are rewritten; write this line in G21 G90 without G92, or leave normalize out"),
+                    );
+                } else {
+                    match self.rewrite_command(&cmd.text, modes, span) {
+                        Ok(t) => {
+                            cmd.text = t.into();
+                            cmd.modes = Some(WrittenModes {
+                                inch: false,
+                                relative: false,
+                                ..modes
+                            });
+                        }
+                        Err(d) => out.diag(d),
+                    }
+                }
+            }
+        }
+        self.track.forget(cmd.clobbers);
+    }
+
+    /// Puts a line passed through as text into the output's modes, or reports one that
+    /// depends on modes normalize removes.
+    fn verbatim(&mut self, v: &mut Verbatim, span: Span, out: &mut Output<'_>) {
+        let codes = g_codes(&v.text);
+        let mode_codes = codes
+            .iter()
+            .any(|&c| c == 20.0 || c == 91.0 || (92.0..93.0).contains(&c));
+        let axes = has_axis_word(&v.text);
+        let odd_modes = v.modes.is_some_and(|m| m.inch || m.relative);
+        let shifted = self.offset_in_use(&v.text);
+        if mode_codes || (axes && (odd_modes || shifted)) {
+            out.diag(
+                Diagnostic::error(
+                    "normalize::verbatim",
+                    format!(
+                        "`{}` passes through as text and {}; normalize cannot rewrite it",
+                        v.text,
+                        if mode_codes {
+                            "holds G20, G91 or G92"
+                        } else if odd_modes {
+                            "has axis words in inches or relative mode"
+                        } else {
+                            "has axis words in a G92-shifted frame"
+                        }
+                    ),
+                )
+                .at_span(span)
+                .with_help("write the line in G21 G90 with plain numbers (no parameters or expressions), or leave normalize out"),
+            );
+        } else if let Some(m) = &mut v.modes {
+            m.inch = false;
+            m.relative = false;
+        }
+        self.track.forget(v.clobbers);
     }
 }
 

@@ -16,9 +16,8 @@
 use serde::{Deserialize, Serialize};
 
 use super::{Check, Context, PassInfo};
-use crate::back::Backend;
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
+use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target, Tracker};
 use crate::motion::{self, Model, Planner, Timing};
 
 /// Options of `stats`.
@@ -86,7 +85,7 @@ pub struct Totals {
 /// The `stats` pass.
 pub struct Stats {
     planner: Planner<()>,
-    last: Joints,
+    track: Tracker,
     finished: bool,
     polar: Option<(Axis, Axis)>,
     /// What has been counted so far (`seconds` is complete after the end).
@@ -153,7 +152,7 @@ impl Stats {
     pub fn with_model(model: Model) -> Self {
         Stats {
             planner: Planner::new(model),
-            last: Joints::default(),
+            track: Tracker::default(),
             finished: false,
             polar: None,
             totals: Totals::default(),
@@ -186,10 +185,12 @@ impl Stats {
         self.planner.model().timing
     }
 
-    fn count(&mut self, block: &Block) {
+    /// Counts one block (the pipeline's `stats` backend feeds it every block that
+    /// reaches the end).
+    pub fn count(&mut self, block: &Block) {
         let (from, to) = match &block.kind {
             BlockKind::Motion(m) => match &m.target {
-                Target::Joints(end) => (self.point(&self.last), self.point(end)),
+                Target::Joints(end) => (self.point(self.track.pos()), self.point(end)),
                 Target::Pose(_) => ([None; 3], [None; 3]),
             },
             _ => ([None; 3], [None; 3]),
@@ -204,7 +205,7 @@ impl Stats {
                 };
                 let length = match m.kind {
                     MotionKind::Arc(arc) if self.polar.is_none() => {
-                        motion::arc_length(&self.last, end, &arc)
+                        motion::arc_length(self.track.pos(), end, &arc)
                     }
                     _ => {
                         let d: f64 = (0..3)
@@ -227,7 +228,7 @@ impl Stats {
                         t.feed_mm += length;
                     }
                 }
-                let de = match (self.last.get(Axis::E), end.get(Axis::E)) {
+                let de = match (self.track.pos().get(Axis::E), end.get(Axis::E)) {
                     (Some(a), Some(b)) => b - a,
                     _ => 0.0,
                 };
@@ -241,14 +242,10 @@ impl Stats {
                     t.retracted -= de;
                 }
                 grow(&mut t.bounds, to);
-                if let Some(seg) = self.planner.model().motion(&self.last, m) {
+                if let Some(seg) = self.planner.model().motion(self.track.pos(), m) {
                     self.planner.push_move(seg, ());
                 }
-                let mut next = self.last.updated_by(end);
-                if m.machine_frame {
-                    next.forget(m.written);
-                }
-                self.last = next;
+                self.track.motion(m);
             }
             BlockKind::Dwell { seconds } => {
                 t.dwell_seconds += seconds.max(0.0);
@@ -256,11 +253,11 @@ impl Stats {
             }
             BlockKind::Verbatim(v) => {
                 t.verbatim += 1;
-                self.last.forget(v.clobbers);
+                self.track.forget(v.clobbers);
                 self.planner.push_stop(0.0, ());
             }
             BlockKind::Command(c) if !c.clobbers.is_empty() => {
-                self.last.forget(c.clobbers);
+                self.track.forget(c.clobbers);
                 self.planner.push_stop(0.0, ());
             }
             _ => {}
@@ -371,22 +368,5 @@ impl Check for Stats {
     fn finish(&mut self, diags: &mut Vec<Diagnostic>) {
         self.end();
         diags.push(Diagnostic::note("stats::report", self.report()));
-    }
-}
-
-/// As a backend, `stats` counts what reaches the end of a pipeline (`ncpost stats`).
-impl Backend for Stats {
-    fn write_block(
-        &mut self,
-        block: &Block,
-        _diags: &mut Vec<Diagnostic>,
-    ) -> Result<(), Diagnostic> {
-        self.count(block);
-        Ok(())
-    }
-
-    fn finish(&mut self) -> Result<(), Diagnostic> {
-        self.end();
-        Ok(())
     }
 }

@@ -100,15 +100,17 @@ pub struct Transform {
 
 impl Transform {
     /// The pass with `options` (finite numbers, scale not 0).
-    pub fn new(o: Options) -> Result<Transform, String> {
+    pub fn new(o: Options) -> Result<Transform, Diagnostic> {
         let finite = [o.dx, o.dy, o.dz, o.rotate, o.origin_x, o.origin_y, o.scale]
             .iter()
             .all(|v| v.is_finite());
         if !finite {
-            return Err("dx, dy, dz, rotate, origin_x, origin_y and scale must be numbers".into());
+            return Err(Diagnostic::settings(
+                "dx, dy, dz, rotate, origin_x, origin_y and scale must be numbers",
+            ));
         }
         if o.scale == 0.0 {
-            return Err("scale must not be 0".into());
+            return Err(Diagnostic::settings("scale must not be 0"));
         }
         // Exact values for quarter turns, so 90° maps grid points onto grid points.
         let turns = o.rotate.rem_euclid(360.0);
