@@ -277,8 +277,9 @@ impl Machine {
     /// unit); empty when the axis pair cannot reach it. Limits are not applied here.
     ///
     /// Every rotary turns about X, Y or Z, so the vector algebra is written out in
-    /// coordinates ([`Machine::inverse_coordinates`]); the general vector solution takes
-    /// the degenerate cases. The sines and cosines of the solutions come with them.
+    /// coordinates; the general vector solution takes the degenerate cases. The sines and
+    /// cosines of the solutions' physical angles come with them
+    /// ([`Solutions::sin_cos`]).
     pub fn inverse(&self, axis: Unit<Vector3<f64>>) -> Solutions {
         let layout = self.inverse_layout();
         self.inverse_coordinates(axis, &layout)
@@ -477,8 +478,8 @@ impl Machine {
         }
     }
 
-    /// The cosine of [`Machine::singularity_distance`] (no inverse trigonometry: cheap
-    /// enough to test every block against a precomputed cone).
+    /// The cosine of [`Machine::singularity_distance`]: a pass tests every block against
+    /// the cosine of its singularity cone, worked out once.
     pub fn singularity_cos(&self, axis: Unit<Vector3<f64>>) -> f64 {
         let c = self.condition(&axis);
         c.w1.dot(&c.p).abs().max(c.w2.dot(&c.q).abs()).min(1.0)

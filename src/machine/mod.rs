@@ -258,15 +258,15 @@ pub enum Timing {
 }
 
 impl std::str::FromStr for Timing {
-    type Err = String;
+    type Err = Diagnostic;
     /// `constant-velocity` or `trapezoid`.
-    fn from_str(s: &str) -> Result<Self, String> {
+    fn from_str(s: &str) -> Result<Self, Diagnostic> {
         match s {
             "constant-velocity" => Ok(Timing::ConstantVelocity),
             "trapezoid" => Ok(Timing::Trapezoid),
-            _ => Err(format!(
+            _ => Err(Diagnostic::settings(format!(
                 "unknown timing `{s}`; use constant-velocity or trapezoid"
-            )),
+            ))),
         }
     }
 }

@@ -534,7 +534,6 @@ impl Densify {
     fn advance(&mut self, block: &Block) -> bool {
         match &block.kind {
             BlockKind::Motion(m) => {
-                // By reference: a copy of the 88 bytes was made for nothing.
                 let Target::Joints(end) = &m.target else {
                     // A pose this late means the joints are not known.
                     self.remember(Joints::default());
@@ -588,7 +587,6 @@ impl Densify {
         };
         let end_slot = 1 - self.prev_slot;
         if let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot]) {
-            // The nodes are borrowed, not copied: each is about 200 bytes.
             let mut hit_limit = false;
             if self.options.max_depth == 0 {
                 hit_limit = true;

@@ -40,7 +40,9 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Target};
+use crate::ir::{
+    Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Span, Target,
+};
 use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within};
 use crate::machine::{Machine, Orientation, Prefer, Turns};
 
@@ -583,7 +585,6 @@ impl Ik {
         let Target::Pose(pose) = &m.target else {
             return false;
         };
-        let pose_axis = pose.axis;
         if let MotionKind::Arc(_) = m.kind {
             out.diag(
                 Diagnostic::error(
@@ -596,28 +597,8 @@ impl Ik {
             return false;
         }
         let cutting = !matches!(m.kind, MotionKind::Rapid);
-        let Some(choice) = self.choose(pose_axis, cutting) else {
-            let a = pose_axis;
-            let miss = match self.miss_angle(a) {
-                Some(d) => format!(", {d:.3} deg from the nearest orientation they reach"),
-                None => String::new(),
-            };
-            out.diag(
-                Diagnostic::error(
-                    "ik::unreachable",
-                    format!(
-                        "tool axis ({:.6}, {:.6}, {:.6}) is out of reach of the rotaries ({}){miss}",
-                        a.x,
-                        a.y,
-                        a.z,
-                        self.ranges()
-                    ),
-                )
-                .at_span(block.span)
-                .with_help(
-                    "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out",
-                ),
-            );
+        let Some(choice) = self.choose(pose.axis, cutting) else {
+            out.diag(self.unreachable(pose.axis).at_span(block.span));
             return false;
         };
         if let Some((k, swing)) = self.singular_swing(&choice, cutting) {
@@ -635,77 +616,111 @@ impl Ik {
                 ),
             );
         }
-
         if let Some((continuous, jump)) = choice.flip {
-            let out_of_range = (0..2)
-                .find_map(|i| {
-                    let (lo, hi) = self.machine.limits(self.axes[i])?;
-                    let v = continuous[i];
-                    (v < lo - LIMIT_SLACK || v > hi + LIMIT_SLACK).then(|| {
-                        format!(
-                            "{} would be {v:.3} deg, outside {lo}..{hi}",
-                            self.axes[i].letter()
-                        )
-                    })
-                })
-                .unwrap_or_else(|| "the continuous solution is out of limits".into());
-            let five = self.prev_five();
-            match (self.options.on_flip, five) {
-                (OnFlip::Retract, Some((xyz0, angles0))) => {
-                    let d = self.options.retract_distance;
-                    let from = self.machine.forward(&xyz0, angles0);
-                    let up = from.tip + from.axis.into_inner() * d;
-                    let above = pose.tip + pose_axis.into_inner() * d;
-                    let retract = self.joints_at(&up, angles0, None, &Joints::NONE);
-                    let turn = self.joints_at(&above, choice.angles, choice.trig, &Joints::NONE);
-                    let step = |kind: MotionKind, target: Joints| {
-                        Block::new(
-                            block.span,
-                            BlockKind::Motion(Motion {
-                                kind,
-                                target: Target::Joints(target),
-                                feed: m.feed,
-                                written: self.written(),
-                                machine_frame: false,
-                                extra: String::new(),
-                            }),
-                        )
-                    };
-                    out.push(step(MotionKind::Linear, retract));
-                    out.push(step(MotionKind::Rapid, turn));
-                    out.diag(
-                        Diagnostic::warning(
-                            "ik::retract",
-                            format!(
-                                "the rotaries flip to the other solution ({out_of_range}): retracting {d} mm along the tool axis, turning {} by up to {jump:.3} deg and plunging back at the block's feed",
-                                self.ranges_moved(angles0, choice.angles)
-                            ),
-                        )
-                        .at_span(block.span),
-                    );
-                }
-                (on_flip, _) => {
-                    let help = if on_flip == OnFlip::Retract {
-                        "the position before this block is not known, so there is nothing to retract from; move to a known pose first".to_string()
-                    } else {
-                        "set `on_flip = \"retract\"` in the preset's ik options to retract, rotate and re-engage".to_string()
-                    };
-                    out.diag(
-                        Diagnostic::error(
-                            "ik::flip",
-                            format!(
-                                "the path leaves the rotaries' reach on its current solution ({out_of_range}); the other solution is {jump:.3} deg away, too far for a cutting move"
-                            ),
-                        )
-                        .at_span(block.span)
-                        .with_help(help),
-                    );
-                }
-            }
+            self.flip(block.span, m, &choice, (continuous, jump), out);
         }
-
         self.apply(m, &choice);
         true
+    }
+
+    /// `ik::unreachable` for tool axis `a`.
+    fn unreachable(&self, a: Unit<Vector3<f64>>) -> Diagnostic {
+        let miss = match self.miss_angle(a) {
+            Some(d) => format!(", {d:.3} deg from the nearest orientation they reach"),
+            None => String::new(),
+        };
+        Diagnostic::error(
+            "ik::unreachable",
+            format!(
+                "tool axis ({:.6}, {:.6}, {:.6}) is out of reach of the rotaries ({}){miss}",
+                a.x,
+                a.y,
+                a.z,
+                self.ranges()
+            ),
+        )
+        .with_help(
+            "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out",
+        )
+    }
+
+    /// Pose motion `m` needs the rotaries to flip to the other solution, `jump` degrees
+    /// away from the previous joints, while the continuing one (`continuous`) is out of
+    /// limits: with `on_flip = "retract"` and a known position, the retract and the turn
+    /// go out before the block; otherwise the error `ik::flip`.
+    fn flip(
+        &self,
+        span: Span,
+        m: &Motion,
+        choice: &Choice,
+        (continuous, jump): ([f64; 2], f64),
+        out: &mut Output<'_>,
+    ) {
+        let Target::Pose(pose) = &m.target else {
+            return;
+        };
+        let out_of_range = (0..2)
+            .find_map(|i| {
+                let (lo, hi) = self.machine.limits(self.axes[i])?;
+                let v = continuous[i];
+                (v < lo - LIMIT_SLACK || v > hi + LIMIT_SLACK).then(|| {
+                    format!(
+                        "{} would be {v:.3} deg, outside {lo}..{hi}",
+                        self.axes[i].letter()
+                    )
+                })
+            })
+            .unwrap_or_else(|| "the continuous solution is out of limits".into());
+        let (OnFlip::Retract, Some((xyz0, angles0))) = (self.options.on_flip, self.prev_five())
+        else {
+            let help = if self.options.on_flip == OnFlip::Retract {
+                "the position before this block is not known, so there is nothing to retract from; move to a known pose first".to_string()
+            } else {
+                "set `on_flip = \"retract\"` in the preset's ik options to retract, rotate and re-engage".to_string()
+            };
+            out.diag(
+                Diagnostic::error(
+                    "ik::flip",
+                    format!(
+                        "the path leaves the rotaries' reach on its current solution ({out_of_range}); the other solution is {jump:.3} deg away, too far for a cutting move"
+                    ),
+                )
+                .at_span(span)
+                .with_help(help),
+            );
+            return;
+        };
+        let d = self.options.retract_distance;
+        let from = self.machine.forward(&xyz0, angles0);
+        let up = from.tip + from.axis.into_inner() * d;
+        let above = pose.tip + pose.axis.into_inner() * d;
+        let retract = self.joints_at(&up, angles0, None, &Joints::NONE);
+        let turn = self.joints_at(&above, choice.angles, choice.trig, &Joints::NONE);
+        let step = |kind: MotionKind, target: Joints| {
+            Block::new(
+                span,
+                BlockKind::Motion(Motion {
+                    kind,
+                    target: Target::Joints(target),
+                    feed: m.feed,
+                    written: self.written(),
+                    machine_frame: false,
+                    extra: String::new(),
+                }),
+            )
+        };
+        out.push(step(MotionKind::Linear, retract));
+        out.push(step(MotionKind::Rapid, turn));
+        out.diag(
+            Diagnostic::warning(
+                "ik::retract",
+                format!(
+                    "the rotaries flip to the other solution ({out_of_range}): retracting {d} mm along the tool axis, turning {} by up to {jump:.3} deg and plunging back at the block's feed",
+                    self.ranges_moved(angles0, choice.angles)
+                ),
+            )
+            .at_span(span),
+        );
     }
 
     /// The letters of the rotaries that change between `a` and `b`: `A and C`.
@@ -741,7 +756,6 @@ impl Ik {
         if let BlockKind::Motion(m) = &block.kind
             && let Target::Pose(_) = &m.target
         {
-            // Borrowed, not moved: a block is a few hundred bytes.
             if self.pose_motion(&mut block, out) {
                 out.push(block);
             }
