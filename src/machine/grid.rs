@@ -17,13 +17,9 @@ use crate::num::print::{from_units, to_units};
 /// `π - PI`: the part of π that `f64` leaves out.
 const PI_LO: f64 = 1.224_646_799_147_353_2e-16;
 
-/// The largest `|n|` [`AngleGrid::sin_cos`] takes. Below it `n` is exact as an `f64`, so
-/// the floating-point estimate of its quarter turns is off by at most one.
+/// The largest `|n|` [`AngleGrid::sin_cos`] takes: up to it every unit count is exact as
+/// an `f64`, as the printed joint values it stands for are.
 const LIMIT: u64 = 1 << 53;
-
-/// `1.5 · 2^52`: added to an `f64` below 2^51 in magnitude, it leaves the value rounded to
-/// a whole number in the low bits of the sum's mantissa.
-const ROUNDER: f64 = 6_755_399_441_055_744.0;
 
 /// `x` as the sum of two parts of at most 26 significant bits each (Dekker's split), so
 /// that either times a number of up to 27 bits is exact.
@@ -102,9 +98,6 @@ pub struct AngleGrid {
     decimals: u8,
     /// Units in a quarter turn, `90 · 10^d`.
     quarter: i64,
-    /// `1 / quarter`, for the estimate of the quarter turns (a division by a number not
-    /// known at compile time would be a slow `idiv`).
-    inv_quarter: f64,
     /// `r = (hi << shift) + lo`, `lo = r & mask`.
     shift: u32,
     mask: i64,
@@ -140,7 +133,6 @@ impl AngleGrid {
         Some(AngleGrid {
             decimals,
             quarter,
-            inv_quarter: 1.0 / quarter as f64,
             shift,
             mask: (1 << shift) - 1,
             lo,
@@ -168,32 +160,18 @@ impl AngleGrid {
     }
 
     /// The sine and cosine of `n` units; `None` when `|n|` is beyond 2^53.
-    // Inlined always: out of line, the `Option` pair came back through memory.
-    #[inline(always)]
     pub fn sin_cos(&self, n: i64) -> Option<(f64, f64)> {
         if n.unsigned_abs() > LIMIT {
             return None;
         }
-        // The quarter turns, estimated in floating point (|n| / quarter is below 2^51)
-        // and rounded by the addition of ROUNDER rather than the saturating `as i64`:
-        // off by at most one either way, which the rest shows.
-        let rounded = n as f64 * self.inv_quarter + ROUNDER;
-        let mut q = rounded.to_bits() as i64 - ROUNDER.to_bits() as i64;
-        let mut r = n - q * self.quarter;
-        if r < 0 {
-            r += self.quarter;
-            q -= 1;
-        }
-        if r >= self.quarter {
-            r -= self.quarter;
-            q += 1;
-        }
+        // Whole quarter turns and the rest, exactly.
+        let q = n.div_euclid(self.quarter);
+        let r = n.rem_euclid(self.quarter);
         let [s1, c1] = self.hi[(r >> self.shift) as usize];
         let [s2, c2] = self.lo[(r & self.mask) as usize];
         let s = s1 * c2 + c1 * s2;
         let c = c1 * c2 - s1 * s2;
-        // `q & 3` is the quarter turn modulo 4, negative `q` included.
-        Some(match q & 3 {
+        Some(match q.rem_euclid(4) {
             0 => (s, c),
             1 => (c, -s),
             2 => (-s, -c),
@@ -216,7 +194,7 @@ struct Physical {
 
 /// A machine's two rotaries on an [`AngleGrid`]: the sine and cosine of each one's
 /// physical angle ([`Machine::physical`]) at a joint value of whole units, for
-/// [`Machine::rotation_by`].
+/// the kinematic chain ([`crate::machine::Turns`]).
 ///
 /// ```
 /// use ncpost::machine::{Machine, grid::RotaryGrid};
@@ -252,8 +230,8 @@ impl RotaryGrid {
     pub fn new(machine: &Machine, decimals: u8) -> Option<RotaryGrid> {
         let grid = AngleGrid::new(decimals)?;
         let physical = |i: usize| {
-            let r = machine.rotary.get(i)?;
-            Some(match grid.units(r.zero_offset) {
+            let r = &machine.rotary[i];
+            match grid.units(r.zero_offset) {
                 Some(zero) => Physical {
                     direction: r.direction,
                     zero,
@@ -264,9 +242,9 @@ impl RotaryGrid {
                     zero: 0,
                     off_grid: Some(r.zero_offset.to_radians().sin_cos()),
                 },
-            })
+            }
         };
-        let rotary = [physical(0)?, physical(1)?];
+        let rotary = [physical(0), physical(1)];
         Some(RotaryGrid { grid, rotary })
     }
 
@@ -277,7 +255,6 @@ impl RotaryGrid {
 
     /// Sine and cosine of rotary `i`'s physical angle at the joint value of `n` units;
     /// `None` when the grid takes no such `n` (see [`AngleGrid::sin_cos`]).
-    #[inline(always)]
     pub fn sin_cos(&self, i: usize, n: i64) -> Option<(f64, f64)> {
         let p = &self.rotary[i];
         let (s, c) = self.grid.sin_cos(n.checked_sub(p.zero)?)?;

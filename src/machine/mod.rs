@@ -23,15 +23,18 @@
 //!   at zero (the usual "tool tip" control point with tool length compensation).
 
 pub mod angle;
+mod chain;
 mod config_g;
 pub mod grid;
-mod kinematics;
+mod inverse;
 pub mod polar;
 
-pub use kinematics::{InverseLayout, Orientation, Solutions, ToolPose};
+pub use chain::{PathEnd, ToolPose, Turns};
+pub use inverse::{Orientation, Solutions};
 
 use serde::{Deserialize, Serialize};
 
+use crate::diag::Diagnostic;
 use crate::ir::Axis;
 
 /// Where a rotary axis sits.
@@ -56,19 +59,6 @@ pub enum RotaryLetter {
 }
 
 impl RotaryLetter {
-    /// `Rᵀ v` for the turn about this letter's axis whose sine and cosine are `s` and `c`
-    /// (as [`Machine::rotation_by`] builds it): nalgebra's `tr_mul` without its products
-    /// with the matrix's zeros and ones, which only add signed zeros. For the passes that
-    /// undo a table rotary once per block, from the sines in registers.
-    #[inline(always)]
-    pub(crate) fn turn_back(self, s: f64, c: f64, v: [f64; 3]) -> [f64; 3] {
-        match self {
-            RotaryLetter::A => [v[0], c * v[1] + s * v[2], c * v[2] - s * v[1]],
-            RotaryLetter::B => [c * v[0] - s * v[2], v[1], s * v[0] + c * v[2]],
-            RotaryLetter::C => [c * v[0] + s * v[1], c * v[1] - s * v[0], v[2]],
-        }
-    }
-
     /// The coordinate index (0 = X, 1 = Y, 2 = Z) of the direction it turns about.
     pub fn index(self) -> usize {
         match self {
@@ -256,6 +246,31 @@ impl Drivers {
     }
 }
 
+/// How the controller's time is modelled (see [`crate::motion`] for the models).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Timing {
+    /// No acceleration: every block runs at its speed from start to end.
+    #[default]
+    ConstantVelocity,
+    /// Trapezoidal speed profiles with per-axis acceleration and jerk-limited junctions.
+    Trapezoid,
+}
+
+impl std::str::FromStr for Timing {
+    type Err = Diagnostic;
+    /// `constant-velocity` or `trapezoid`.
+    fn from_str(s: &str) -> Result<Self, Diagnostic> {
+        match s {
+            "constant-velocity" => Ok(Timing::ConstantVelocity),
+            "trapezoid" => Ok(Timing::Trapezoid),
+            _ => Err(Diagnostic::settings(format!(
+                "unknown timing `{s}`; use constant-velocity or trapezoid"
+            ))),
+        }
+    }
+}
+
 /// What the controller does with F and how fast it can go.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -272,7 +287,7 @@ pub struct Controller {
     /// Stepper drivers per axis (`M584`); axes without one are left out.
     pub drivers: Drivers,
     /// How time is modelled (`constant-velocity` or `trapezoid`; see [`crate::motion`]).
-    pub timing: crate::motion::Timing,
+    pub timing: Timing,
     /// Motion blocks the trapezoid model plans ahead (a firmware's queue length).
     pub lookahead: usize,
     /// Instantaneous speed change allowed per axis at a junction, mm/min or deg/min
@@ -288,7 +303,7 @@ impl Default for Controller {
             max_feed: PerAxis::default(),
             acceleration: PerAxis::default(),
             drivers: Drivers::default(),
-            timing: crate::motion::Timing::ConstantVelocity,
+            timing: Timing::ConstantVelocity,
             lookahead: 16,
             jerk: PerAxis::default(),
         }
@@ -327,13 +342,25 @@ pub struct Machine {
     #[serde(default)]
     pub name: String,
     /// The two rotary axes, from the base outward.
-    pub rotary: Vec<Rotary>,
+    #[serde(deserialize_with = "two_rotaries")]
+    pub rotary: [Rotary; 2],
     /// Linear travel (absent: unchecked).
     #[serde(default)]
     pub linear: Option<Linear>,
     /// The controller.
     #[serde(default)]
     pub controller: Controller,
+}
+
+/// The `[[rotary]]` tables of a machine definition: exactly two.
+fn two_rotaries<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[Rotary; 2], D::Error> {
+    let list = Vec::<Rotary>::deserialize(d)?;
+    <[Rotary; 2]>::try_from(list).map_err(|list| {
+        serde::de::Error::custom(format!(
+            "a machine needs exactly two rotary axes, this one has {}",
+            list.len()
+        ))
+    })
 }
 
 /// Which elements the two rotaries sit on.
@@ -349,61 +376,59 @@ pub enum Layout {
 
 impl Machine {
     /// Parses and checks a machine definition (the body of a preset's `[machine]` table).
-    pub fn from_toml(text: &str) -> Result<Machine, String> {
-        let m: Machine = toml::from_str(text).map_err(|e| e.to_string())?;
+    pub fn from_toml(text: &str) -> Result<Machine, Diagnostic> {
+        let m: Machine = toml::from_str(text).map_err(|e| Diagnostic::settings(e.to_string()))?;
         m.check()?;
         Ok(m)
     }
 
-    /// Checks what serde cannot: two rotaries about different directions, signs of ±1,
+    /// Checks what serde cannot: rotaries about different directions, signs of ±1,
     /// limits in order, finite numbers.
-    pub fn check(&self) -> Result<(), String> {
-        if self.rotary.len() != 2 {
-            return Err(format!(
-                "a machine needs exactly two rotary axes, this one has {}",
-                self.rotary.len()
-            ));
-        }
+    pub fn check(&self) -> Result<(), Diagnostic> {
         if self.rotary[0].axis == self.rotary[1].axis {
-            return Err(format!(
+            return Err(Diagnostic::settings(format!(
                 "both rotary axes are {:?}; they must turn about different directions",
                 self.rotary[0].axis
-            ));
+            )));
         }
         for r in &self.rotary {
             let name = r.axis.axis().letter();
             if r.direction != 1.0 && r.direction != -1.0 {
-                return Err(format!("rotary {name}: direction must be 1 or -1"));
+                return Err(Diagnostic::settings(format!(
+                    "rotary {name}: direction must be 1 or -1"
+                )));
             }
             if !r.pivot.iter().all(|v| v.is_finite()) || !r.zero_offset.is_finite() {
-                return Err(format!(
+                return Err(Diagnostic::settings(format!(
                     "rotary {name}: pivot and zero_offset must be finite"
-                ));
+                )));
             }
             match (r.cyclic, r.min, r.max) {
                 (true, None, None) => {}
                 (true, _, _) => {
-                    return Err(format!(
+                    return Err(Diagnostic::settings(format!(
                         "rotary {name}: a cyclic axis has no min or max; leave them out"
-                    ));
+                    )));
                 }
                 (false, Some(lo), Some(hi)) if lo.is_finite() && hi.is_finite() && lo < hi => {}
                 (false, _, _) => {
-                    return Err(format!(
+                    return Err(Diagnostic::settings(format!(
                         "rotary {name}: give min < max, or set cyclic = true"
-                    ));
+                    )));
                 }
             }
         }
         if let Some(l) = &self.linear {
             for (n, t) in [("X", l.x), ("Y", l.y), ("Z", l.z)] {
                 if !(t.min.is_finite() && t.max.is_finite() && t.min < t.max) {
-                    return Err(format!("linear {n}: give min < max"));
+                    return Err(Diagnostic::settings(format!("linear {n}: give min < max")));
                 }
             }
         }
         if !(self.controller.min_speed.is_finite() && self.controller.min_speed >= 0.0) {
-            return Err("controller.min_speed must be a finite number >= 0".into());
+            return Err(Diagnostic::settings(
+                "controller.min_speed must be a finite number >= 0",
+            ));
         }
         Ok(())
     }

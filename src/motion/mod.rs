@@ -64,40 +64,15 @@ pub mod arc;
 
 use std::collections::VecDeque;
 
-use nalgebra::Point3;
-use serde::{Deserialize, Serialize};
-
 use crate::ir::{AXIS_COUNT, Arc, Axis, FeedMode, Joints, Motion, MotionKind, Target};
 use crate::machine::polar::Polar;
 use crate::machine::{Controller, FeedRule, Machine, PerAxis};
+use nalgebra::Point3;
 
 /// Speed assumed for rapids when nothing else is known, mm/min.
 pub const DEFAULT_RAPID_FEED: f64 = 3000.0;
 
-/// How the controller's time is modelled.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Timing {
-    /// No acceleration: every block runs at its speed from start to end.
-    #[default]
-    ConstantVelocity,
-    /// Trapezoidal speed profiles with per-axis acceleration and jerk-limited junctions.
-    Trapezoid,
-}
-
-impl std::str::FromStr for Timing {
-    type Err = String;
-    /// `constant-velocity` or `trapezoid`.
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "constant-velocity" => Ok(Timing::ConstantVelocity),
-            "trapezoid" => Ok(Timing::Trapezoid),
-            _ => Err(format!(
-                "unknown timing `{s}`; use constant-velocity or trapezoid"
-            )),
-        }
-    }
-}
+pub use crate::machine::Timing;
 
 /// The timing a pass uses: the run-wide `--timing` wins,
 /// then the pass's own `timing` option, then the controller's `timing`.

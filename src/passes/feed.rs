@@ -37,7 +37,7 @@ use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target,
 };
 use crate::machine::grid::RotaryGrid;
-use crate::machine::{FeedRule, Machine, Mount, RotaryLetter};
+use crate::machine::{FeedRule, Machine, Turns};
 use crate::num::print::{from_units, to_units};
 
 /// Options of `feed`.
@@ -81,52 +81,6 @@ const ZERO_TIP: f64 = 1e-6;
 
 /// Largest relative error of a printed F.
 const FEED_PRECISION: f64 = 1e-3;
-
-/// From this many units of its decimals on, a printed F is within [`FEED_PRECISION`]
-/// without a division to show it: rounding to a whole unit moves it by at most half a unit,
-/// 5e-4 of it, and the floating-point steps of the check add a few ulps.
-const SURE_UNITS: f64 = 1000.0;
-
-/// The tip of a machine with both rotaries on the table, from the sines and cosines in
-/// registers: [`Machine::tip_with`] takes its rotations and joints through memory, and the
-/// narrow stores that build them, read back wide, stalled every read.
-///
-/// Each turn is written out about its coordinate axis: the products [`Machine::tip_with`]
-/// makes with the matrix's zeros and ones only add signed zeros, so every value is equal
-/// to its (a zero may differ in sign, which the tip's only use, the length of a
-/// difference of tips, cannot see), the other products and sums being the same in the
-/// same order.
-#[derive(Debug, Clone, Copy)]
-struct TableTable {
-    about: [RotaryLetter; 2],
-    pivots: [[f64; 3]; 2],
-}
-
-impl TableTable {
-    fn new(machine: &Machine) -> Option<TableTable> {
-        let [r0, r1] = [machine.rotary.first()?, machine.rotary.get(1)?];
-        (r0.on == Mount::Table && r1.on == Mount::Table).then_some(TableTable {
-            about: [r0.axis, r1.axis],
-            pivots: [r0.pivot, r1.pivot],
-        })
-    }
-
-    /// The tool tip at `xyz` with the rotaries' sines and cosines `sc` (listing order):
-    /// undo the base rotary, then the one it carries.
-    #[inline(always)]
-    fn tip(&self, xyz: [f64; 3], sc: [(f64, f64); 2]) -> Point3<f64> {
-        let [p0, p1] = self.pivots;
-        let d = [xyz[0] - p0[0], xyz[1] - p0[1], xyz[2] - p0[2]];
-        let t = self.about[0].turn_back(sc[0].0, sc[0].1, d);
-        let q = [
-            t[0] + p0[0] - p1[0],
-            t[1] + p0[1] - p1[1],
-            t[2] + p0[2] - p1[2],
-        ];
-        let u = self.about[1].turn_back(sc[1].0, sc[1].1, q);
-        Point3::new(u[0] + p1[0], u[1] + p1[1], u[2] + p1[2])
-    }
-}
 
 /// A warning shown once with its place and counted for the end of the run.
 #[derive(Debug, Default)]
@@ -172,24 +126,16 @@ pub struct Feed {
     /// The G92 offset of each rotary in whole units of the grid; `None` when it is not
     /// on the grid (the joint value then is not either, and libm turns it).
     offset_units: [Option<i64>; 2],
-    /// Each of `axes`' `max_feed` (infinite when it has none) and the speed above which
-    /// it warns (a little over it, so that a move at exactly the limit does not; infinite
-    /// again, so that the test needs no branch on whether there is one).
+    /// Each of `axes`' `max_feed` and the speed above which it warns (a little over it, so
+    /// that a move at exactly the limit does not); both infinite for an axis without one,
+    /// which no speed exceeds.
     max_feed: [(f64, f64); 5],
     /// `10^decimals.feed`: a printed F is a whole number of `1 / feed_scale`.
     feed_scale: f64,
     /// Where the next move starts.
     prev: Joints,
-    /// `prev` as read, when already computed under the offsets in force (between
-    /// batches: within one, [`Feed::run_batch`] carries it in a local).
+    /// `prev` as read, when already computed under the offsets in force.
     prev_read: Option<Read>,
-    /// Both rotaries on the table: the tip is worked out by [`TableTable::tip`].
-    table_table: Option<TableTable>,
-    /// A printed F of at least this many units is surely within [`FEED_PRECISION`]
-    /// (infinite when the backend prints F with more decimals than [`to_units`] scales).
-    sure_units: f64,
-    /// The scale [`to_units`] takes F's units with, `10^min(decimals.feed, 9)`.
-    units_scale: f64,
     offsets: [f64; AXIS_COUNT],
     /// The last rate emitted (for moves of zero length).
     last_rate: Option<f64>,
@@ -201,10 +147,16 @@ pub struct Feed {
 
 impl Feed {
     /// A `feed` pass for `machine`; `context.decimals` is the backend's precision.
-    pub fn new(machine: Machine, options: Options, context: &Context<'_>) -> Result<Feed, String> {
+    pub fn new(
+        machine: Machine,
+        options: Options,
+        context: &Context<'_>,
+    ) -> Result<Feed, Diagnostic> {
         machine.check()?;
         if !(options.reorient_feed.is_finite() && options.reorient_feed > 0.0) {
-            return Err("reorient_feed must be a positive number of degrees per minute".into());
+            return Err(Diagnostic::settings(
+                "reorient_feed must be a positive number of degrees per minute",
+            ));
         }
         let [r0, r1] = machine.rotary_axes();
         let axes = [Axis::X, Axis::Y, Axis::Z, r0, r1];
@@ -212,7 +164,6 @@ impl Feed {
             Some(max) => (max, max * (1.0 + 1e-9)),
             None => (f64::INFINITY, f64::INFINITY),
         });
-        let table_table = TableTable::new(&machine);
         let mut feed = Feed {
             rule: options.mode.unwrap_or(machine.controller.feed_rule),
             grid: context
@@ -230,14 +181,6 @@ impl Feed {
             offset_units: [None; 2],
             prev: Joints::default(),
             prev_read: None,
-            table_table,
-            sure_units: match context.decimals {
-                Some(d) if d.feed <= 9 => SURE_UNITS,
-                _ => f64::INFINITY,
-            },
-            units_scale: context
-                .decimals
-                .map_or(1.0, |d| 10f64.powi(i32::from(d.feed.min(9)))),
             offsets: [0.0; AXIS_COUNT],
             last_rate: None,
             missing: Counted::default(),
@@ -260,9 +203,6 @@ impl Feed {
 
     /// The five axes of `j` as the controller reads them; `None` if one is unknown or
     /// cannot be printed.
-    // Inlined always: returned through memory, the reading came back with wide loads
-    // of what narrow stores had just written (a stall on every move).
-    #[inline(always)]
     fn read(&self, j: &Joints) -> Option<Read> {
         if j.known.intersection(self.five) != self.five {
             return None;
@@ -287,65 +227,33 @@ impl Feed {
             self.sin_cos(0, ir[3], units[3]),
             self.sin_cos(1, ir[4], units[4]),
         ];
-        // Only the tip: the tool axis would be computed and normalised for nothing.
-        let xyz = [ir[0], ir[1], ir[2]];
-        let tip = match &self.table_table {
-            Some(tt) => tt.tip(xyz, sc),
-            None => self.chain_tip(xyz, sc),
-        };
+        // Only the tip: the tool axis does not enter the time.
+        let tip = self.machine.tip_at([ir[0], ir[1], ir[2]], &sc);
         Some(Read { printed, tip })
-    }
-
-    /// [`Feed::read`]'s tip on a machine with a rotary on the head, by the machine's
-    /// chains.
-    #[inline(never)]
-    fn chain_tip(&self, xyz: [f64; 3], sc: [(f64, f64); 2]) -> Point3<f64> {
-        let rot = [
-            self.machine.rotation_by(0, sc[0].0, sc[0].1),
-            self.machine.rotation_by(1, sc[1].0, sc[1].1),
-        ];
-        self.machine.tip_with(&xyz, &rot)
-    }
-
-    /// [`Feed::read`] out of line, for the rare move whose start was not read before.
-    #[inline(never)]
-    fn read_start(&self) -> Option<Read> {
-        self.read(&self.prev)
     }
 
     /// Sine and cosine of rotary `i`'s physical angle at joint value `deg`, printed as
     /// `units` (with the offset in force): from the grid's tables when the joint value
-    /// lies on it.
-    #[inline(always)]
+    /// lies on it, so that the controller's printed angle is turned exactly.
     fn sin_cos(&self, i: usize, deg: f64, units: i64) -> (f64, f64) {
         if let (Some(grid), Some(offset)) = (&self.grid, self.offset_units[i])
             && let Some(sc) = grid.sin_cos(i, units - offset)
         {
             return sc;
         }
-        self.libm_sin_cos(i, deg)
-    }
-
-    /// [`Feed::sin_cos`] off the grid (out of line: it is rare, and the libm call would
-    /// make every read save its registers).
-    #[cold]
-    #[inline(never)]
-    fn libm_sin_cos(&self, i: usize, deg: f64) -> (f64, f64) {
         self.machine.physical(i, deg).sin_cos()
     }
 
     /// The tool tip of the exact joint values `j`, which [`Feed::read`] could read.
     fn exact_tip(&self, j: &Joints) -> Point3<f64> {
         let v = self.index.map(|i| j.values[i]);
-        let rot = self.machine.rotations([v[3], v[4]]);
-        self.machine.tip_with(&[v[0], v[1], v[2]], &rot)
+        let turns: Turns = self.machine.turns([v[3], v[4]]);
+        self.machine.tip_at([v[0], v[1], v[2]], &turns)
     }
 
     /// The new feed of a linear move from `prev` to `end` at programmed tip speed `rate`;
     /// `a` and `b` are `prev` and `end` as read (the exact joints are only needed when
     /// the printed tips are close, to tell a reorientation from a short move).
-    // Inlined always, its warnings out of line: the readings stay in registers.
-    #[inline(always)]
     fn feed_for(
         &mut self,
         span: Span,
@@ -385,8 +293,7 @@ impl Feed {
         // few units of XYZ correction, run at the programmed speed.
         let minutes = if minutes > 0.0 { minutes } else { dxyz / rate };
         let nist = if dxyz > 0.0 { dxyz } else { drot() };
-        // Divided once: the NIST speed is both F and the speed checked against the
-        // minimum (the compiler divided twice).
+        // The NIST speed is both F and the speed checked against the minimum.
         let nist_speed = nist / minutes;
         let mut f = match self.rule {
             FeedRule::Nist => nist_speed,
@@ -400,41 +307,31 @@ impl Feed {
         if speed < self.machine.controller.min_speed {
             self.warn_min_speed(span, speed, diags);
         }
-        // Counted, not branched on: on the 1M-point benchmark two moves in three have an
-        // axis over its max_feed, in no pattern a predictor learns, and each mispredicted
-        // branch waited for the whole chain of the feed. (An axis without a max_feed has an
-        // infinite limit, which no speed exceeds.)
+        // Every axis over its max_feed counts; the first such move is shown.
         let v: [f64; 5] = std::array::from_fn(|k| delta[k].abs() / minutes);
-        let over: u64 = (0..5).map(|k| u64::from(v[k] > self.max_feed[k].1)).sum();
-        // `&`, not `&&`: one branch, taken once in a run.
-        if (over > 0) & (self.max_speed.count == 0) {
-            self.warn_max_speed(span, &v, diags);
+        let over = (0..5).filter(|&k| v[k] > self.max_feed[k].1).count() as u64;
+        if over > 0 {
+            if self.max_speed.count == 0 {
+                self.warn_max_speed(span, &v, diags);
+            }
+            self.max_speed.count += over;
         }
-        self.max_speed.count += over;
         if let Some(d) = self.decimals
             && let Some(units) = to_units(f, d.feed)
         {
-            // Enough units are within the precision (see SURE_UNITS): no division for the
-            // printed value and its error on the path to the next move.
-            // (`f` times the scale of `to_units` is finite, as `to_units` took it.)
-            if f * self.units_scale < self.sure_units {
-                f = self.check_precision(span, f, units, d.feed, diags);
-            }
+            f = self.check_precision(span, f, units, d.feed, diags);
         }
         self.last_rate = Some(f);
         (mode, f)
     }
 
     /// The length between the tips of the exact joint values of `prev` and `end`.
-    #[cold]
-    #[inline(never)]
     fn exact_length(&self, end: &Joints) -> f64 {
         (self.exact_tip(end) - self.exact_tip(&self.prev)).norm()
     }
 
     /// The check of a printed F of `units` against `f`, which it may replace (F0 is no
     /// feed at all; the slowest printable one is the nearest).
-    #[inline(never)]
     fn check_precision(
         &mut self,
         span: Span,
@@ -468,8 +365,6 @@ impl Feed {
     }
 
     /// `feed::min-speed` for a move at `speed`.
-    #[cold]
-    #[inline(never)]
     fn warn_min_speed(&mut self, span: Span, speed: f64, diags: &mut Vec<Diagnostic>) {
         let min = self.machine.controller.min_speed;
         self.min_speed.hit(diags, || {
@@ -486,8 +381,6 @@ impl Feed {
 
     /// `feed::max-speed`, shown once, for the first of `axes` whose speed in `v` is over
     /// its max_feed.
-    #[cold]
-    #[inline(never)]
     fn warn_max_speed(&self, span: Span, v: &[f64; 5], diags: &mut Vec<Diagnostic>) {
         let Some(k) = (0..5).find(|&k| v[k] > self.max_feed[k].1) else {
             return;
@@ -558,7 +451,6 @@ impl Pass for Feed {
 impl Feed {
     /// Sets the F of a cutting move in place and follows the position: the reading of the
     /// position before `block` passed in and the one after it returned.
-    #[inline(always)]
     fn step(
         &mut self,
         block: &mut Block,
@@ -580,7 +472,7 @@ impl Feed {
                 {
                     match m.feed.rate {
                         Some(rate) if rate.is_finite() && rate > 0.0 => {
-                            let a = prev_read.or_else(|| self.read_start());
+                            let a = prev_read.or_else(|| self.read(&self.prev));
                             let b = self.read(end);
                             if let (Some(a), Some(b)) = (a, b) {
                                 let (mode, f) = self.feed_for(span, (&a, &b), end, rate, diags);
@@ -628,8 +520,6 @@ impl Feed {
     }
 
     /// `feed::missing` for a cutting move without a feed rate.
-    #[cold]
-    #[inline(never)]
     fn warn_missing(&mut self, span: Span, diags: &mut Vec<Diagnostic>) {
         self.missing.hit(diags, || {
             Diagnostic::error("feed::missing", "a cutting move without a feed rate")
@@ -757,30 +647,6 @@ mod tests {
             check_read(&mut f, v, offsets, table, 1e-12)?;
             // Without offsets, the grid is used whenever it can be.
             check_read(&mut f, v, [0.0; 5], decimals <= 4, 1e-12)?;
-        }
-
-        /// The written-out table-table tip is `Machine::tip_with`'s, value for value (a
-        /// zero may differ in sign only), on quarter turns too, where sines and cosines
-        /// are exactly zero.
-        #[test]
-        fn table_table_tip_is_tip_with(
-            preset in 0..PRESETS.len(),
-            xyz in proptest::array::uniform3(-300.0f64..300.0),
-            angles in proptest::array::uniform2(-400.0f64..400.0),
-            quarters in proptest::array::uniform2(-5i32..5),
-            (on_quarters, zero_xyz) in (proptest::bool::ANY, proptest::bool::weighted(0.2)),
-        ) {
-            let f = feed(preset, [0.0; 2], 4);
-            let Some(tt) = f.table_table else {
-                return Ok(());
-            };
-            let angles = if on_quarters { quarters.map(|q| f64::from(q) * 90.0) } else { angles };
-            let xyz = if zero_xyz { [0.0, -0.0, xyz[2]] } else { xyz };
-            let sc = [0, 1].map(|i| f.machine.physical(i, angles[i]).sin_cos());
-            let rot = [0, 1].map(|i| f.machine.rotation_by(i, sc[i].0, sc[i].1));
-            let want = f.machine.tip_with(&xyz, &rot);
-            let got = tt.tip(xyz, sc);
-            prop_assert!(got == want, "{:?} against {:?}", got, want);
         }
 
         /// Many turns out (C = 49773.1203 degrees), libm's own argument is rounded by up to

@@ -9,8 +9,8 @@
 //! wins (on a tie, the smaller sum of both changes), then the machine's preferred sign
 //! (first rotary with a preference), then the first. Without previous rotary values
 //! (program start, after homing) the preference decides. X, Y, Z follow from
-//! [`Machine::linear_with`], with the rotations built from the solution's sines and cosines
-//! ([`Machine::rotation_by`]; from the degrees for a held rotary), so FK(joints) reproduces
+//! [`Machine::linear_at`], with the rotaries' sines and cosines those of the solution
+//! ([`crate::machine::Solutions::sin_cos`]; from the degrees for a held rotary), so FK(joints) reproduces
 //! the pose exactly outside the singularity cone.
 //!
 //! # Singularities
@@ -40,9 +40,11 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Target};
-use crate::machine::angle::{LIMIT_SLACK, near_turn, near_turn_and_within, turn_within};
-use crate::machine::{InverseLayout, Machine, Orientation, Prefer};
+use crate::ir::{
+    Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Span, Target,
+};
+use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within};
+use crate::machine::{Machine, Orientation, Prefer, Turns};
 
 /// What `ik` does where the path must flip to the other solution in a cutting move.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -89,20 +91,21 @@ impl Default for Options {
 }
 
 impl Options {
-    fn check(&self) -> Result<(), String> {
-        if !(self.singularity_cone.is_finite() && (0.0..90.0).contains(&self.singularity_cone)) {
-            return Err("singularity_cone must be at least 0 and below 90 degrees".into());
-        }
-        if !(self.singular_jump.is_finite() && self.singular_jump >= 0.0) {
-            return Err("singular_jump must be a number of degrees >= 0".into());
-        }
-        if !(self.retract_distance.is_finite() && self.retract_distance > 0.0) {
-            return Err("retract_distance must be a positive number of millimetres".into());
-        }
-        if !(self.max_cutting_jump.is_finite() && self.max_cutting_jump > 0.0) {
-            return Err("max_cutting_jump must be a positive number of degrees".into());
-        }
-        Ok(())
+    fn check(&self) -> Result<(), Diagnostic> {
+        let problem = if !(self.singularity_cone.is_finite()
+            && (0.0..90.0).contains(&self.singularity_cone))
+        {
+            "singularity_cone must be at least 0 and below 90 degrees"
+        } else if !(self.singular_jump.is_finite() && self.singular_jump >= 0.0) {
+            "singular_jump must be a number of degrees >= 0"
+        } else if !(self.retract_distance.is_finite() && self.retract_distance > 0.0) {
+            "retract_distance must be a positive number of millimetres"
+        } else if !(self.max_cutting_jump.is_finite() && self.max_cutting_jump > 0.0) {
+            "max_cutting_jump must be a positive number of degrees"
+        } else {
+            return Ok(());
+        };
+        Err(Diagnostic::settings(problem))
     }
 }
 
@@ -137,7 +140,7 @@ struct Choice {
     /// The sine and cosine of both rotaries' physical angles when they come from the
     /// solution ([`crate::machine::Solutions::sin_cos`]; a whole turn keeps them); `None`
     /// for a held rotary.
-    trig: Option<[(f64, f64); 2]>,
+    trig: Option<Turns>,
 }
 
 /// One orientation at the turns that suit the previous joints ([`Ik::candidate`]).
@@ -163,8 +166,6 @@ pub struct Ik {
     last_axis: Option<([f64; 2], Unit<Vector3<f64>>)>,
     /// cos(singularity_cone).
     cone_cos: f64,
-    /// The machine's orientation condition, worked out once.
-    layout: InverseLayout,
     /// The cosine of an axis turn surely below [`WALK_STEP`].
     within_step_cos: f64,
     /// The rotaries' limits (`None`: cyclic), listing order.
@@ -173,12 +174,11 @@ pub struct Ik {
 
 impl Ik {
     /// An `ik` pass for `machine`.
-    pub fn new(machine: Machine, options: Options) -> Result<Ik, String> {
+    pub fn new(machine: Machine, options: Options) -> Result<Ik, Diagnostic> {
         options.check()?;
         machine.check()?;
         let axes = machine.rotary_axes();
         let cone_cos = options.singularity_cone.to_radians().cos();
-        let layout = machine.inverse_layout();
         let limits = axes.map(|a| machine.limits(a));
         Ok(Ik {
             machine,
@@ -188,7 +188,6 @@ impl Ik {
             held: None,
             last_axis: None,
             cone_cos,
-            layout,
             within_step_cos: (WALK_STEP * (1.0 - 1e-6)).to_radians().cos(),
             limits,
         })
@@ -209,68 +208,42 @@ impl Ik {
 
     /// Rotary `i` at the turn of `v` nearest `prev` ignoring the limits (`v` itself
     /// without a previous value), and [`Ik::in_limits`] of it.
-    #[inline(always)]
     fn turns(&self, i: usize, v: f64, prev: Option<f64>) -> (f64, Option<f64>) {
-        match (self.limits[i], prev) {
-            (None, Some(p)) => {
-                let near = near_turn(v, p);
-                (near, Some(near))
-            }
-            (None, None) => (v, Some(v)),
-            (Some((lo, hi)), Some(p)) => near_turn_and_within(v, lo, hi, p),
-            (Some((lo, hi)), None) => (v, turn_within(v, lo, hi, None)),
-        }
+        (
+            prev.map_or(v, |p| near_turn(v, p)),
+            self.in_limits(i, v, prev),
+        )
     }
 
     /// How far `angles` is from the previous joints (known rotaries only): the largest
     /// change, then the sum of both (so of two orientations with the same largest change
     /// the one that moves the other rotary less wins).
-    #[inline(always)]
     fn cost(&self, angles: [f64; 2], prev: [Option<f64>; 2]) -> (f64, f64) {
-        // Written out (a fold over the known rotaries kept its state in memory): the
-        // largest change from 0 up, the sum from 0 up, rotary 0 first.
-        // `m` is never NaN (it starts at 0 and takes only a larger `d`) and `d` never -0,
-        // so a comparison gives `f64::max` (which returned the other for a NaN) without
-        // its NaN test: one `maxsd`.
-        let (mut m, mut s) = (0.0, 0.0);
-        if let Some(p) = prev[0] {
-            let d = (angles[0] - p).abs();
-            m = if d > m { d } else { m };
-            s += d;
+        let (mut largest, mut sum) = (0.0f64, 0.0);
+        for (a, p) in angles.into_iter().zip(prev) {
+            if let Some(p) = p {
+                let d = (a - p).abs();
+                largest = largest.max(d);
+                sum += d;
+            }
         }
-        if let Some(p) = prev[1] {
-            let d = (angles[1] - p).abs();
-            m = if d > m { d } else { m };
-            s += d;
-        }
-        (m, s)
+        (largest, sum)
     }
 
     /// Orientation `o` taken at the turns that suit it for `prev` ([`Ik::turns`]): the
     /// angles ignoring the limits and their [`Ik::cost`], and the angles inside the limits
     /// with theirs when both rotaries reach.
-    #[inline(always)]
     fn candidate(&self, o: &Orientation, prev: [Option<f64>; 2]) -> Candidate {
         let (u0, l0) = self.turns(0, o.angles[0], prev[0]);
         let (u1, l1) = self.turns(1, o.angles[1], prev[1]);
         let unlimited = [u0, u1];
-        let unlimited_cost = self.cost(unlimited, prev);
         let limited = match (l0, l1) {
-            (Some(a0), Some(a1)) => {
-                let angles = [a0, a1];
-                // Inside the limits the turns are usually the same ones.
-                let c = if angles.map(f64::to_bits) == unlimited.map(f64::to_bits) {
-                    unlimited_cost
-                } else {
-                    self.cost(angles, prev)
-                };
-                Some((angles, c))
-            }
+            (Some(a0), Some(a1)) => Some(([a0, a1], self.cost([a0, a1], prev))),
             _ => None,
         };
         Candidate {
             unlimited,
-            unlimited_cost,
+            unlimited_cost: self.cost(unlimited, prev),
             limited,
         }
     }
@@ -304,10 +277,6 @@ impl Ik {
     /// end points alone can pick the other branch when a move turns the axis far: from
     /// A20 C240 to a 70 deg tilt, A-70 C160 is "nearer" than A70 C340, but getting there
     /// swings the tool through vertical, off the programmed path.
-    // Inlined, the far turns walked apart (`walk`): returned from a call, the previous
-    // values came back through memory in other widths than they were stored in, a
-    // store-forwarding stall on nearly every block.
-    #[inline(always)]
     fn walked(&self, axis: Unit<Vector3<f64>>, prev: [Option<f64>; 2]) -> [Option<f64>; 2] {
         let [Some(p0), Some(p1)] = prev else {
             return prev;
@@ -319,8 +288,7 @@ impl Ik {
         };
         // Most blocks turn the axis far less than a step: tell that from the cosine (the
         // one `angle` takes the arccosine of) against a cone a little narrower than a step,
-        // so that acos rounding cannot matter.
-        // Both are unit vectors: their dot product is the cosine, to a rounding far
+        // so that acos rounding cannot matter. Both are unit vectors: their dot product is the cosine, to a rounding far
         // inside the cone's margin.
         if from.dot(&axis) >= self.within_step_cos {
             return prev;
@@ -333,7 +301,6 @@ impl Ik {
 
     /// [`Ik::walked`] from tool axis `from` at rotary values `[p0, p1]` to `axis`, when it
     /// turns far enough to look: the values reached, or `None` to keep `[p0, p1]`.
-    #[inline(never)]
     fn walk(
         &self,
         from: Unit<Vector3<f64>>,
@@ -350,7 +317,7 @@ impl Ik {
             let t = s as f64 / steps as f64;
             let ax = from.try_slerp(&axis, t, 1e-12)?;
             let mut best: Option<([f64; 2], (f64, f64))> = None;
-            for o in self.machine.inverse_with(&self.layout, ax).orientations() {
+            for o in &self.machine.inverse(ax) {
                 let mut a = [
                     near_turn(o.angles[0], cur[0]),
                     near_turn(o.angles[1], cur[1]),
@@ -372,10 +339,6 @@ impl Ik {
     }
 
     /// The rotary values for tool axis `axis`; `None` when no orientation is reachable.
-    // Inlined, with the solver, into the block edit: the solutions and the choice then
-    // stay in registers instead of being stored and loaded again in other widths (a
-    // store-forwarding stall per block).
-    #[inline(always)]
     fn choose(&self, axis: Unit<Vector3<f64>>, cutting: bool) -> Option<Choice> {
         let actual = self.prev_angles();
         let prev = if cutting {
@@ -383,12 +346,9 @@ impl Ik {
         } else {
             actual
         };
-        let solutions = self.machine.inverse_inline(&self.layout, axis);
-        let (first, second) = solutions.first_two();
+        let solutions = self.machine.inverse(axis);
         // The first orientation's free rotary, else the second's.
-        let free = first
-            .and_then(|o| o.free)
-            .or_else(|| second.and_then(|o| o.free));
+        let free = solutions.iter().find_map(|o| o.free);
         if free.is_some() || solutions.singularity_cos > self.cone_cos {
             let k = free.unwrap_or_else(|| self.machine.singular_rotary(axis));
             if let Some(pk) = prev[k] {
@@ -410,13 +370,10 @@ impl Ik {
         // (angles, cost, index) of the best reachable orientation, and (angles, cost) of
         // the nearest one ignoring the limits: the first orientation's, unless the second
         // one is clearly nearer (or, reachable, ties and alone has the preferred sign).
-        // Written out for the two there can be rather than looped over, so that neither
-        // is kept in memory.
-        let first = first?;
-        let one = self.candidate(first, prev);
+        let one = self.candidate(solutions.first()?, prev);
         let mut nearest = (one.unlimited, one.unlimited_cost);
         let mut best = one.limited.map(|(angles, c)| (angles, c, 0));
-        if let Some(o) = second {
+        if let Some(o) = solutions.get(1) {
             let two = self.candidate(o, prev);
             if Self::less(two.unlimited_cost, nearest.1) == Some(true) {
                 nearest = (two.unlimited, two.unlimited_cost);
@@ -446,7 +403,7 @@ impl Ik {
             angles,
             held: None,
             flip,
-            trig: Some(solutions.sin_cos_of(k == 1)),
+            trig: Some(solutions.sin_cos(k)),
         })
     }
 
@@ -494,65 +451,34 @@ impl Ik {
         parts.join(", ")
     }
 
-    /// X, Y, Z for the rotaries at `angles` with the tip on `tip` (`trig` as for
-    /// [`Ik::joints_at`]).
-    #[inline(always)]
-    fn xyz_at(
-        &self,
-        tip: &nalgebra::Point3<f64>,
-        angles: [f64; 2],
-        trig: Option<[(f64, f64); 2]>,
-    ) -> [f64; 3] {
-        match trig {
-            Some([(s0, c0), (s1, c1)]) => {
-                let rot = [
-                    self.machine.rotation_by(0, s0, c0),
-                    self.machine.rotation_by(1, s1, c1),
-                ];
-                self.machine.linear_with(tip, &rot)
-            }
-            None => self.machine.linear(tip, angles),
-        }
-    }
-
     /// The joint vector for the rotaries at `angles` with the tip on `tip`, carrying the
     /// other known axes (those of `extra` but X, Y, Z and the rotaries, else the previous
     /// joints'); `trig`, when known, is the sine and cosine of both rotaries' physical
-    /// angles (the rotations then need no sin_cos of the degrees).
-    #[inline(always)]
+    /// angles (the chain then needs no sin_cos of the degrees).
     fn joints_at(
         &self,
         tip: &nalgebra::Point3<f64>,
         angles: [f64; 2],
-        trig: Option<[(f64, f64); 2]>,
+        trig: Option<Turns>,
         extra: &Joints,
     ) -> Joints {
-        let xyz = self.xyz_at(tip, angles, trig);
-        // Value by value, one select each, with no store at a varying index: the joints
-        // are then stored whole (into the block and as the previous joints) straight from
-        // registers; written piecewise on the stack and copied, each copy waited on store
-        // forwarding. The second rotary last, as if set after the first.
-        let [i0, i1] = self.axes.map(Axis::index);
-        let values = std::array::from_fn(|k| {
-            if k < 3 {
-                xyz[k]
-            } else if k == i1 {
-                angles[1]
-            } else if k == i0 {
-                angles[0]
-            } else if extra.known.contains(Axis::ALL[k]) {
-                extra.values[k]
-            } else {
-                self.prev.values[k]
-            }
-        });
+        let xyz = match trig {
+            Some(turns) => self.machine.linear_at(tip, &turns),
+            None => self.machine.linear(tip, angles),
+        };
+        let mut values = self.prev.values;
+        for a in extra.known.iter() {
+            values[a.index()] = extra.values[a.index()];
+        }
+        values[..3].copy_from_slice(&xyz);
+        values[self.axes[0].index()] = angles[0];
+        values[self.axes[1].index()] = angles[1];
         Joints {
             values,
             known: self.prev.known.union(extra.known).union(self.written()),
         }
     }
 
-    #[inline(always)]
     fn written(&self) -> AxisSet {
         let mut w = AxisSet::XYZ;
         w.insert(self.axes[0]);
@@ -582,40 +508,14 @@ impl Ik {
 
     /// Makes pose motion `m` the joints of `choice` (which [`Ik::choose`] gave for its
     /// pose), carrying the pose's other axes, and takes them as the previous joints.
-    #[inline(always)]
     fn apply(&mut self, m: &mut Motion, choice: &Choice) {
         let Target::Pose(pose) = &m.target else {
             return;
         };
-        if pose.extra_axes.is_some() {
-            let target = self.joints_at(&pose.tip, choice.angles, choice.trig, pose.extra());
-            self.last_axis = Some((choice.angles, pose.axis));
-            m.target = Target::Joints(target);
-            self.prev = target;
-        } else {
-            // The usual pose without other axes: the previous joints (stored a block ago)
-            // copied whole into the block, then the new values stored one by one into both
-            // copies. Nothing just stored is loaded again in another width, and no value
-            // needs a select.
-            let xyz = self.xyz_at(&pose.tip, choice.angles, choice.trig);
-            // Taken from the pose while it is there (kept aside, it went to the stack).
-            self.last_axis = Some((choice.angles, pose.axis));
-            let known = self.prev.known.union(self.written());
-            let [i0, i1] = self.axes.map(Axis::index);
-            let put = |j: &mut Joints| {
-                j.values[0] = xyz[0];
-                j.values[1] = xyz[1];
-                j.values[2] = xyz[2];
-                j.values[i0] = choice.angles[0];
-                j.values[i1] = choice.angles[1];
-                j.known = known;
-            };
-            m.target = Target::Joints(self.prev);
-            if let Target::Joints(j) = &mut m.target {
-                put(j);
-            }
-            put(&mut self.prev);
-        }
+        let target = self.joints_at(&pose.tip, choice.angles, choice.trig, pose.extra());
+        self.last_axis = Some((choice.angles, pose.axis));
+        m.target = Target::Joints(target);
+        self.prev = target;
         m.written = m.written.union(self.written());
         self.held = choice.held;
     }
@@ -685,7 +585,6 @@ impl Ik {
         let Target::Pose(pose) = &m.target else {
             return false;
         };
-        let pose_axis = pose.axis;
         if let MotionKind::Arc(_) = m.kind {
             out.diag(
                 Diagnostic::error(
@@ -698,28 +597,8 @@ impl Ik {
             return false;
         }
         let cutting = !matches!(m.kind, MotionKind::Rapid);
-        let Some(choice) = self.choose(pose_axis, cutting) else {
-            let a = pose_axis;
-            let miss = match self.miss_angle(a) {
-                Some(d) => format!(", {d:.3} deg from the nearest orientation they reach"),
-                None => String::new(),
-            };
-            out.diag(
-                Diagnostic::error(
-                    "ik::unreachable",
-                    format!(
-                        "tool axis ({:.6}, {:.6}, {:.6}) is out of reach of the rotaries ({}){miss}",
-                        a.x,
-                        a.y,
-                        a.z,
-                        self.ranges()
-                    ),
-                )
-                .at_span(block.span)
-                .with_help(
-                    "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out",
-                ),
-            );
+        let Some(choice) = self.choose(pose.axis, cutting) else {
+            out.diag(self.unreachable(pose.axis).at_span(block.span));
             return false;
         };
         if let Some((k, swing)) = self.singular_swing(&choice, cutting) {
@@ -737,77 +616,111 @@ impl Ik {
                 ),
             );
         }
-
         if let Some((continuous, jump)) = choice.flip {
-            let out_of_range = (0..2)
-                .find_map(|i| {
-                    let (lo, hi) = self.machine.limits(self.axes[i])?;
-                    let v = continuous[i];
-                    (v < lo - LIMIT_SLACK || v > hi + LIMIT_SLACK).then(|| {
-                        format!(
-                            "{} would be {v:.3} deg, outside {lo}..{hi}",
-                            self.axes[i].letter()
-                        )
-                    })
-                })
-                .unwrap_or_else(|| "the continuous solution is out of limits".into());
-            let five = self.prev_five();
-            match (self.options.on_flip, five) {
-                (OnFlip::Retract, Some((xyz0, angles0))) => {
-                    let d = self.options.retract_distance;
-                    let from = self.machine.forward(&xyz0, angles0);
-                    let up = from.tip + from.axis.into_inner() * d;
-                    let above = pose.tip + pose_axis.into_inner() * d;
-                    let retract = self.joints_at(&up, angles0, None, &Joints::NONE);
-                    let turn = self.joints_at(&above, choice.angles, choice.trig, &Joints::NONE);
-                    let step = |kind: MotionKind, target: Joints| {
-                        Block::new(
-                            block.span,
-                            BlockKind::Motion(Motion {
-                                kind,
-                                target: Target::Joints(target),
-                                feed: m.feed,
-                                written: self.written(),
-                                machine_frame: false,
-                                extra: String::new(),
-                            }),
-                        )
-                    };
-                    out.push(step(MotionKind::Linear, retract));
-                    out.push(step(MotionKind::Rapid, turn));
-                    out.diag(
-                        Diagnostic::warning(
-                            "ik::retract",
-                            format!(
-                                "the rotaries flip to the other solution ({out_of_range}): retracting {d} mm along the tool axis, turning {} by up to {jump:.3} deg and plunging back at the block's feed",
-                                self.ranges_moved(angles0, choice.angles)
-                            ),
-                        )
-                        .at_span(block.span),
-                    );
-                }
-                (on_flip, _) => {
-                    let help = if on_flip == OnFlip::Retract {
-                        "the position before this block is not known, so there is nothing to retract from; move to a known pose first".to_string()
-                    } else {
-                        "set `on_flip = \"retract\"` in the preset's ik options to retract, rotate and re-engage".to_string()
-                    };
-                    out.diag(
-                        Diagnostic::error(
-                            "ik::flip",
-                            format!(
-                                "the path leaves the rotaries' reach on its current solution ({out_of_range}); the other solution is {jump:.3} deg away, too far for a cutting move"
-                            ),
-                        )
-                        .at_span(block.span)
-                        .with_help(help),
-                    );
-                }
-            }
+            self.flip(block.span, m, &choice, (continuous, jump), out);
         }
-
         self.apply(m, &choice);
         true
+    }
+
+    /// `ik::unreachable` for tool axis `a`.
+    fn unreachable(&self, a: Unit<Vector3<f64>>) -> Diagnostic {
+        let miss = match self.miss_angle(a) {
+            Some(d) => format!(", {d:.3} deg from the nearest orientation they reach"),
+            None => String::new(),
+        };
+        Diagnostic::error(
+            "ik::unreachable",
+            format!(
+                "tool axis ({:.6}, {:.6}, {:.6}) is out of reach of the rotaries ({}){miss}",
+                a.x,
+                a.y,
+                a.z,
+                self.ranges()
+            ),
+        )
+        .with_help(
+            "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out",
+        )
+    }
+
+    /// Pose motion `m` needs the rotaries to flip to the other solution, `jump` degrees
+    /// away from the previous joints, while the continuing one (`continuous`) is out of
+    /// limits: with `on_flip = "retract"` and a known position, the retract and the turn
+    /// go out before the block; otherwise the error `ik::flip`.
+    fn flip(
+        &self,
+        span: Span,
+        m: &Motion,
+        choice: &Choice,
+        (continuous, jump): ([f64; 2], f64),
+        out: &mut Output<'_>,
+    ) {
+        let Target::Pose(pose) = &m.target else {
+            return;
+        };
+        let out_of_range = (0..2)
+            .find_map(|i| {
+                let (lo, hi) = self.machine.limits(self.axes[i])?;
+                let v = continuous[i];
+                (v < lo - LIMIT_SLACK || v > hi + LIMIT_SLACK).then(|| {
+                    format!(
+                        "{} would be {v:.3} deg, outside {lo}..{hi}",
+                        self.axes[i].letter()
+                    )
+                })
+            })
+            .unwrap_or_else(|| "the continuous solution is out of limits".into());
+        let (OnFlip::Retract, Some((xyz0, angles0))) = (self.options.on_flip, self.prev_five())
+        else {
+            let help = if self.options.on_flip == OnFlip::Retract {
+                "the position before this block is not known, so there is nothing to retract from; move to a known pose first".to_string()
+            } else {
+                "set `on_flip = \"retract\"` in the preset's ik options to retract, rotate and re-engage".to_string()
+            };
+            out.diag(
+                Diagnostic::error(
+                    "ik::flip",
+                    format!(
+                        "the path leaves the rotaries' reach on its current solution ({out_of_range}); the other solution is {jump:.3} deg away, too far for a cutting move"
+                    ),
+                )
+                .at_span(span)
+                .with_help(help),
+            );
+            return;
+        };
+        let d = self.options.retract_distance;
+        let from = self.machine.forward(&xyz0, angles0);
+        let up = from.tip + from.axis.into_inner() * d;
+        let above = pose.tip + pose.axis.into_inner() * d;
+        let retract = self.joints_at(&up, angles0, None, &Joints::NONE);
+        let turn = self.joints_at(&above, choice.angles, choice.trig, &Joints::NONE);
+        let step = |kind: MotionKind, target: Joints| {
+            Block::new(
+                span,
+                BlockKind::Motion(Motion {
+                    kind,
+                    target: Target::Joints(target),
+                    feed: m.feed,
+                    written: self.written(),
+                    machine_frame: false,
+                    extra: String::new(),
+                }),
+            )
+        };
+        out.push(step(MotionKind::Linear, retract));
+        out.push(step(MotionKind::Rapid, turn));
+        out.diag(
+            Diagnostic::warning(
+                "ik::retract",
+                format!(
+                    "the rotaries flip to the other solution ({out_of_range}): retracting {d} mm along the tool axis, turning {} by up to {jump:.3} deg and plunging back at the block's feed",
+                    self.ranges_moved(angles0, choice.angles)
+                ),
+            )
+            .at_span(span),
+        );
     }
 
     /// The letters of the rotaries that change between `a` and `b`: `A and C`.
@@ -843,7 +756,6 @@ impl Ik {
         if let BlockKind::Motion(m) = &block.kind
             && let Target::Pose(_) = &m.target
         {
-            // Borrowed, not moved: a block is a few hundred bytes.
             if self.pose_motion(&mut block, out) {
                 out.push(block);
             }

@@ -78,9 +78,9 @@ pub struct Limits {
 
 impl Limits {
     /// A `limits` pass for `machine`.
-    pub fn new(machine: &Machine, options: Options) -> Result<Limits, String> {
+    pub fn new(machine: &Machine, options: Options) -> Result<Limits, Diagnostic> {
         if !(options.tolerance.is_finite() && options.tolerance >= 0.0) {
-            return Err("tolerance must be a number >= 0".into());
+            return Err(Diagnostic::settings("tolerance must be a number >= 0"));
         }
         let ranges = Axis::ALL
             .into_iter()
@@ -93,32 +93,10 @@ impl Limits {
         })
     }
 
-    /// Checks one block's joints against the ranges.
-    #[inline(always)]
+    /// Checks one block's joints against the ranges: an error for each known value
+    /// outside its range (but for axes a G53 move writes in machine coordinates), the
+    /// overruns counted.
     fn block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
-        if let BlockKind::Motion(m) = &block.kind
-            && let Target::Joints(j) = &m.target
-        {
-            // Every joint move comes here, and nearly all are inside: one sweep without
-            // a branch per axis, and the axis-by-axis search (with the messages, the
-            // counts and the G53 exception) only when a known value is outside.
-            let tol = self.options.tolerance;
-            let mut outside = false;
-            for &(axis, lo, hi) in &self.ranges {
-                let v = j.values[axis.index()];
-                outside |= j.known.contains(axis) & !((v >= lo - tol) & (v <= hi + tol));
-            }
-            if outside {
-                self.report(block, diags);
-            }
-        }
-    }
-
-    /// [`Limits::check`] axis by axis for a block with a known value outside its range:
-    /// the errors and the counts.
-    #[cold]
-    #[inline(never)]
-    fn report(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
         if let BlockKind::Motion(m) = &block.kind
             && let Target::Joints(j) = &m.target
         {

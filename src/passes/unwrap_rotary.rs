@@ -23,7 +23,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, Block, BlockKind, Joints, MotionKind, OffsetChange, OffsetCode, Span, Target,
 };
-use crate::machine::angle::{LIMIT_SLACK, near_turn_close, round, turn_within, wrap180};
+use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within, wrap180};
 
 /// Options of `unwrap-rotary`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -74,12 +74,12 @@ pub const INFO: PassInfo = PassInfo {
                     let mut chars = s.trim().chars();
                     match (chars.next().and_then(Axis::from_letter), chars.next()) {
                         (Some(a), None) if a.is_rotary() => Ok((a, Rule::Cyclic)),
-                        _ => Err(format!(
+                        _ => Err(Diagnostic::settings(format!(
                             "`{s}` in axes is not a rotary axis letter (A, B or C)"
-                        )),
+                        ))),
                     }
                 })
-                .collect::<Result<Vec<_>, String>>()?,
+                .collect::<Result<Vec<_>, Diagnostic>>()?,
         };
         Ok(Box::new(UnwrapRotary::new(rules, options)?))
     },
@@ -115,9 +115,11 @@ pub struct UnwrapRotary {
 
 impl UnwrapRotary {
     /// An `unwrap-rotary` pass treating each axis of `rules` as it says.
-    pub fn new(rules: Vec<(Axis, Rule)>, options: Options) -> Result<UnwrapRotary, String> {
+    pub fn new(rules: Vec<(Axis, Rule)>, options: Options) -> Result<UnwrapRotary, Diagnostic> {
         if !(options.rebase_above.is_finite() && options.rebase_above >= 180.0) {
-            return Err("rebase_above must be at least 180 degrees".into());
+            return Err(Diagnostic::settings(
+                "rebase_above must be at least 180 degrees",
+            ));
         }
         Ok(UnwrapRotary {
             rules,
@@ -130,12 +132,10 @@ impl UnwrapRotary {
     }
 
     /// The value `v` of `axis` takes under `rule`.
-    #[inline(always)]
     fn unwrap(&self, axis: Axis, rule: Rule, v: f64) -> f64 {
         let prev = self.prev.get(axis);
         match rule {
-            // `ik`'s values are already continuous: usually no turn to round.
-            Rule::Cyclic => prev.map_or(v, |p| near_turn_close(v, p)),
+            Rule::Cyclic => prev.map_or(v, |p| near_turn(v, p)),
             Rule::Limited(lo, hi) => {
                 if (lo - LIMIT_SLACK..=hi + LIMIT_SLACK).contains(&v) {
                     return v;
@@ -147,9 +147,6 @@ impl UnwrapRotary {
     }
 
     /// Unwraps the axes of `j` (all, or those not in `skip`).
-    // Inlined into `apply`: it runs for every joint move, and the call saved and restored
-    // registers around a loop of two rules.
-    #[inline(always)]
     fn unwrap_joints(&mut self, j: &mut Joints, skip: crate::ir::AxisSet) {
         for &(axis, rule) in &self.rules {
             if skip.contains(axis) {
@@ -181,7 +178,7 @@ impl UnwrapRotary {
             }
             // Whole turns only, so the printed numbers shift by exact multiples of 360.
             let printed = cur + offsets[i];
-            let turns = round((printed - wrap180(printed)) / 360.0);
+            let turns = ((printed - wrap180(printed)) / 360.0).round();
             if turns == 0.0 {
                 continue;
             }
@@ -307,17 +304,12 @@ impl UnwrapRotary {
                 } else {
                     crate::ir::AxisSet::EMPTY
                 };
-                // Neither the joints before (for a re-basing rapid only) nor after are
-                // copied otherwise: a copy loads the values just stored one by one in
-                // other widths, which waits on store forwarding.
+                let before = self.prev;
+                self.unwrap_joints(j, skip);
+                self.prev.forget(skip);
+                // Re-basing happens at rapids, where the controller may jump the axis.
                 if self.options.rebase && matches!(m.kind, MotionKind::Rapid) && !m.machine_frame {
-                    let before = self.prev;
-                    self.unwrap_joints(j, skip);
-                    self.prev.forget(skip);
                     rebase = self.rebase(&before, j);
-                } else {
-                    self.unwrap_joints(j, skip);
-                    self.prev.forget(skip);
                 }
                 self.check_float32(j, block.span, diags);
             }

@@ -1,4 +1,5 @@
-//! Forward and closed-form inverse kinematics of two-rotary machines.
+//! Closed-form inverse kinematics of two-rotary machines: the rotary values that point the
+//! tool along an axis.
 //!
 //! Every layout reduces to one problem: find angles α, β with
 //! `Rot(w1, α) p = Rot(w2, β) q` for unit vectors `p`, `q` and axis directions `w1`, `w2`
@@ -6,20 +7,11 @@
 //! solutions, one when the cones touch, none when they miss (the orientation is out of
 //! reach of this axis pair).
 
-use nalgebra::{Matrix3, Point3, Rotation3, Unit, Vector3};
+use nalgebra::{Rotation3, Unit, Vector3};
 use smallvec::SmallVec;
 
 use super::angle::wrap180;
 use super::{Layout, Machine, Mount};
-
-/// A tool pose in the part frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ToolPose {
-    /// Tool tip, mm.
-    pub tip: Point3<f64>,
-    /// Unit tool axis, from the tip into the spindle.
-    pub axis: Unit<Vector3<f64>>,
-}
 
 /// Rotary joint values that give a tool orientation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -45,10 +37,9 @@ struct Condition {
 }
 
 /// The orientation condition `Rot(w1, s_a φ[ia]) p = Rot(w2, s_b φ[ib]) q` of a layout
-/// with the tool axis left out (it is `p` or `q`, the other one is Z), from
-/// [`Machine::inverse_layout`] for [`Machine::inverse_with`].
+/// with the tool axis left out (it is `p` or `q`, the other one is Z).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct InverseLayout {
+struct InverseLayout {
     /// Coordinate index of `w1` (every rotary turns about X, Y or Z), its rotary and the
     /// sign of that rotary's angle.
     w1: usize,
@@ -62,30 +53,8 @@ pub struct InverseLayout {
     axis_is_p: bool,
 }
 
-/// Which rotary α and β of an [`InverseLayout`]'s condition are, and the signs of their
-/// angles, for [`Machine::inverse_with`] (constants for the built-in layouts).
-#[derive(Debug, Clone, Copy)]
-struct Pair {
-    ia: usize,
-    sa: f64,
-    ib: usize,
-    sb: f64,
-}
-
-impl Pair {
-    #[inline(always)]
-    fn of(layout: &InverseLayout) -> Pair {
-        Pair {
-            ia: layout.ia,
-            sa: layout.sa,
-            ib: layout.ib,
-            sb: layout.sb,
-        }
-    }
-}
-
-/// The orientations [`Machine::inverse_with`] found: those of [`Machine::inverse`], in its
-/// order, with [`Machine::singularity_cos`] of the same axis and the sine and cosine of
+/// The orientations [`Machine::inverse`] found (at most two; the value derefs to their
+/// slice), with [`Machine::singularity_cos`] of the same axis and the sine and cosine of
 /// each orientation's physical rotary angles.
 #[derive(Debug, Clone, Copy)]
 pub struct Solutions {
@@ -116,40 +85,43 @@ impl Solutions {
 
     /// The sine and cosine of the physical angle ([`Machine::physical`] of the joint value)
     /// of both rotaries of orientation `k` (an index into [`Solutions::orientations`]),
-    /// listing order, for [`Machine::rotation_by`]: what the angles came from, without
-    /// going through degrees and back. A whole turn of a joint value keeps them.
-    pub fn sin_cos(&self, k: usize) -> [(f64, f64); 2] {
+    /// listing order, as [`super::Turns`] for the kinematic chain: what the angles came
+    /// from, without going through degrees and back. A whole turn of a joint value keeps
+    /// them.
+    pub fn sin_cos(&self, k: usize) -> super::Turns {
         self.trig[k]
-    }
-
-    /// The first two orientations, `None` past the count: for a caller that inlines
-    /// [`Machine::inverse_inline`] and keeps everything in registers (a slice of them, or
-    /// an index that varies, would need them in memory).
-    #[inline(always)]
-    pub(crate) fn first_two(&self) -> (Option<&Orientation>, Option<&Orientation>) {
-        (
-            (self.len > 0).then_some(&self.found[0]),
-            (self.len > 1).then_some(&self.found[1]),
-        )
-    }
-
-    /// [`Solutions::sin_cos`] of the second orientation when `second`, else of the first,
-    /// picked value by value (no load at a varying address, see
-    /// [`Solutions::first_two`]).
-    #[inline(always)]
-    pub(crate) fn sin_cos_of(&self, second: bool) -> [(f64, f64); 2] {
-        let [a, b] = self.trig;
-        let pick = |x: f64, y: f64| if second { y } else { x };
-        [
-            (pick(a[0].0, b[0].0), pick(a[0].1, b[0].1)),
-            (pick(a[1].0, b[1].0), pick(a[1].1, b[1].1)),
-        ]
     }
 
     fn push(&mut self, o: Orientation, trig: [(f64, f64); 2]) {
         self.found[self.len] = o;
         self.trig[self.len] = trig;
         self.len += 1;
+    }
+}
+
+impl std::ops::Deref for Solutions {
+    type Target = [Orientation];
+
+    fn deref(&self) -> &[Orientation] {
+        self.orientations()
+    }
+}
+
+impl<'a> IntoIterator for &'a Solutions {
+    type Item = &'a Orientation;
+    type IntoIter = std::slice::Iter<'a, Orientation>;
+
+    fn into_iter(self) -> Self::IntoIter {
+        self.orientations().iter()
+    }
+}
+
+impl IntoIterator for Solutions {
+    type Item = Orientation;
+    type IntoIter = std::iter::Take<std::array::IntoIter<Orientation, 2>>;
+
+    fn into_iter(self) -> Self::IntoIter {
+        self.found.into_iter().take(self.len)
     }
 }
 
@@ -181,10 +153,9 @@ struct Turn {
 
 impl Turn {
     /// The angle `y.atan2(x)` of `args = (y, x)`, with its sine and cosine.
-    #[inline(always)]
     fn of(args: (f64, f64)) -> Turn {
         let (y, x) = args;
-        // Both arguments are bounded and not both near zero (inverse_with's degenerate
+        // Both arguments are bounded and not both near zero (the coordinate solution's degenerate
         // tests), so the squares neither overflow nor underflow.
         let r = (y * y + x * x).sqrt();
         Turn {
@@ -197,41 +168,39 @@ impl Turn {
     }
 
     /// [`Turn::of`] `args`, derived from `self` when the arguments are the same but for
-    /// their signs (the second solution's usually differ from the first's so: `atan2` is
-    /// odd in y, and negating x mirrors the angle about ±π/2), without a second library
-    /// `atan2`. A derived angle is within an ulp or two of `atan2` (the subtraction from π
-    /// rounds); the sine and cosine are `self`'s with signs changed, exactly.
-    #[inline(always)]
+    /// their signs: the second solution's usually differ from the first's so (`atan2` is
+    /// odd in y, and negating x mirrors the angle about ±π/2). A derived angle is within
+    /// an ulp or two of `atan2` (the subtraction from π rounds); the sine and cosine are
+    /// `self`'s with signs changed, exactly.
     fn again(&self, args: (f64, f64)) -> Turn {
-        const SIGN: u64 = 1 << 63;
         let (y, x) = args;
-        // The sign bits that differ, when nothing else does.
-        let dy = y.to_bits() ^ self.y.to_bits();
-        let dx = x.to_bits() ^ self.x.to_bits();
-        if (dy | dx) & !SIGN != 0 {
+        if y.abs() != self.y.abs() || x.abs() != self.x.abs() {
             return Turn::of(args);
         }
-        let flip = |v: f64, d: u64| f64::from_bits(v.to_bits() ^ d);
-        // self.angle has the sign of self.y, which is not zero (inverse_with leaves y = 0
-        // to the general solution): negating x takes it to ±π − angle, negating y negates.
-        let mirrored = if dx != 0 {
-            std::f64::consts::PI.copysign(self.angle) - self.angle
-        } else {
-            self.angle
-        };
+        let (mut angle, mut sin, mut cos) = (self.angle, self.sin, self.cos);
+        // self.angle has the sign of self.y, which is not zero (the coordinate solution
+        // leaves y = 0 to the general one): negating x takes it to ±π − angle, negating y
+        // negates it.
+        if x.is_sign_negative() != self.x.is_sign_negative() {
+            angle = std::f64::consts::PI.copysign(self.angle) - self.angle;
+            cos = -cos;
+        }
+        if y.is_sign_negative() != self.y.is_sign_negative() {
+            angle = -angle;
+            sin = -sin;
+        }
         Turn {
             y,
             x,
-            angle: flip(mirrored, dy),
-            sin: flip(self.sin, dy),
-            cos: flip(self.cos, dx),
+            angle,
+            sin,
+            cos,
         }
     }
 }
 
 /// `(f × c, f · c)` of two vectors across a coordinate axis, given by their components
 /// in cyclic order: `atan2`'s arguments for the angle from `f` to `c` about that axis.
-#[inline(always)]
 fn cross_dot(f: (f64, f64), c: (f64, f64)) -> (f64, f64) {
     (f.0 * c.1 - f.1 * c.0, f.0 * c.0 + f.1 * c.1)
 }
@@ -241,7 +210,6 @@ fn cross_dot(f: (f64, f64), c: (f64, f64)) -> (f64, f64) {
 /// vector with `c3` along the third axis. Across w1 the common vector has y (along w2)
 /// and `c3`, across w2 x and `c3`; which comes first in cyclic order is the layout's
 /// (`order`: whether w2 follows w1, whether w1 follows w2).
-#[inline(always)]
 fn turn_args(
     (f1, f2): ((f64, f64), (f64, f64)),
     (x, y): (f64, f64),
@@ -254,192 +222,14 @@ fn turn_args(
 }
 
 impl Machine {
-    /// Physical rotation angle of rotary `i` at joint value `deg`, radians.
-    pub fn physical(&self, i: usize, deg: f64) -> f64 {
-        let r = &self.rotary[i];
-        (r.direction * (deg - r.zero_offset)).to_radians()
-    }
-
     /// Joint value of rotary `i` for a physical angle, degrees in (-180, 180].
-    #[inline(always)]
     fn joint(&self, i: usize, rad: f64) -> f64 {
         let r = &self.rotary[i];
         wrap180(r.direction * rad.to_degrees() + r.zero_offset)
     }
 
-    /// The rotation of rotary `i` (listing order) at joint value `deg` (degrees), as in
-    /// [`Machine::rotations`], for a caller that needs one of the two.
-    pub fn rotation(&self, i: usize, deg: f64) -> Rotation3<f64> {
-        let (s, c) = self.physical(i, deg).sin_cos();
-        self.rotation_by(i, s, c)
-    }
-
-    /// The rotation of rotary `i` (listing order) by the physical angle whose sine and
-    /// cosine are `s` and `c` (direction and zero offset already applied), for a caller
-    /// that knows them without the angle.
-    pub fn rotation_by(&self, i: usize, s: f64, c: f64) -> Rotation3<f64> {
-        // Built directly: about a coordinate axis the matrix is known, and this runs for
-        // every block (from_axis_angle would normalise and multiply out the general form).
-        let m = match self.rotary[i].axis {
-            super::RotaryLetter::A => Matrix3::new(1.0, 0.0, 0.0, 0.0, c, -s, 0.0, s, c),
-            super::RotaryLetter::B => Matrix3::new(c, 0.0, s, 0.0, 1.0, 0.0, -s, 0.0, c),
-            super::RotaryLetter::C => Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0),
-        };
-        Rotation3::from_matrix_unchecked(m)
-    }
-
-    /// Both rotaries' rotations at joint values `angles` (degrees, listing order), for
-    /// [`Machine::forward_with`]: a caller that needs them again can keep them.
-    pub fn rotations(&self, angles: [f64; 2]) -> [Rotation3<f64>; 2] {
-        [self.rotation(0, angles[0]), self.rotation(1, angles[1])]
-    }
-
-    /// Indices of the rotaries on `mount`, base outward.
-    fn chain(&self, mount: Mount) -> ([usize; 2], usize) {
-        let mut idx = [0; 2];
-        let mut n = 0;
-        for (i, r) in self.rotary.iter().enumerate() {
-            if r.on == mount {
-                idx[n] = i;
-                n += 1;
-            }
-        }
-        (idx, n)
-    }
-
-    /// Applies the chain `idx` (base outward) to a point: the outermost element turns
-    /// first, then the one carrying it.
-    fn chain_point(
-        &self,
-        idx: &[usize],
-        rot: &[Rotation3<f64>; 2],
-        mut x: Vector3<f64>,
-    ) -> Vector3<f64> {
-        for &i in idx.iter().rev() {
-            let c = Vector3::from(self.rotary[i].pivot);
-            x = c + rot[i] * (x - c);
-        }
-        x
-    }
-
-    fn chain_point_inverse(
-        &self,
-        idx: &[usize],
-        rot: &[Rotation3<f64>; 2],
-        mut x: Vector3<f64>,
-    ) -> Vector3<f64> {
-        for &i in idx.iter() {
-            let c = Vector3::from(self.rotary[i].pivot);
-            x = c + rot[i].inverse() * (x - c);
-        }
-        x
-    }
-
-    fn chain_rotation(&self, idx: &[usize], rot: &[Rotation3<f64>; 2]) -> Rotation3<f64> {
-        let mut r = Rotation3::identity();
-        for &i in idx {
-            r *= rot[i];
-        }
-        r
-    }
-
-    /// The tool pose in the part frame for linear positions `xyz` (mm) and rotary joint
-    /// values `angles` (degrees, listing order).
-    pub fn forward(&self, xyz: &[f64; 3], angles: [f64; 2]) -> ToolPose {
-        self.forward_with(xyz, &self.rotations(angles))
-    }
-
-    /// [`Machine::forward`] with the rotaries' rotations from [`Machine::rotations`].
-    pub fn forward_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> ToolPose {
-        ToolPose {
-            tip: self.tip_with(xyz, rot),
-            // A product of rotations keeps unit length to rounding; renormalise anyway so
-            // the invariant holds exactly enough for long chains of computation.
-            axis: Unit::new_normalize(self.axis_with(rot)),
-        }
-    }
-
-    /// The tool tip of [`Machine::forward_with`] alone, for a caller that does not need
-    /// the tool axis.
-    pub fn tip_with(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> Point3<f64> {
-        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
-            // The common table-table case written out (it runs for every block in
-            // densify and feed): undo the base rotary, then the one it carries.
-            let (c0, c1) = (
-                Vector3::from(self.rotary[0].pivot),
-                Vector3::from(self.rotary[1].pivot),
-            );
-            let (r0, r1) = (rot[0].matrix(), rot[1].matrix());
-            let q = r0.tr_mul(&(Vector3::from(*xyz) - c0)) + c0 - c1;
-            return Point3::from(r1.tr_mul(&q) + c1);
-        }
-        self.tip_by_chains(xyz, rot)
-    }
-
-    /// [`Machine::tip_with`] for any layout, by the table and head chains (apart, so that
-    /// the table-table case stays small where it is inlined).
-    #[inline(never)]
-    fn tip_by_chains(&self, xyz: &[f64; 3], rot: &[Rotation3<f64>; 2]) -> Point3<f64> {
-        let (table, nt) = self.chain(Mount::Table);
-        let (head, nh) = self.chain(Mount::Head);
-        let tip_machine =
-            Vector3::from(*xyz) + self.chain_point(&head[..nh], rot, Vector3::zeros());
-        Point3::from(self.chain_point_inverse(&table[..nt], rot, tip_machine))
-    }
-
-    /// The tool axis of [`Machine::forward_with`] before it is normalised.
-    fn axis_with(&self, rot: &[Rotation3<f64>; 2]) -> Vector3<f64> {
-        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
-            // The machine's Z seen from the part: R1ᵀ R0ᵀ z, and R0ᵀ z is R0's third row.
-            let (r0, r1) = (rot[0].matrix(), rot[1].matrix());
-            return r1.tr_mul(&Vector3::new(r0[(2, 0)], r0[(2, 1)], r0[(2, 2)]));
-        }
-        let (table, nt) = self.chain(Mount::Table);
-        let (head, nh) = self.chain(Mount::Head);
-        let axis_machine = self.chain_rotation(&head[..nh], rot) * Vector3::z();
-        self.chain_rotation(&table[..nt], rot).inverse() * axis_machine
-    }
-
-    /// The linear positions (X, Y, Z, mm) that put the tool tip on `tip` (part frame) with
-    /// the rotaries at `angles`.
-    pub fn linear(&self, tip: &Point3<f64>, angles: [f64; 2]) -> [f64; 3] {
-        self.linear_with(tip, &self.rotations(angles))
-    }
-
-    /// [`Machine::linear`] with the rotaries' rotations from [`Machine::rotations`] (or
-    /// [`Machine::rotation_by`]).
-    // Inlined: ik builds the rotations for every block just to call this, and a call
-    // needs them stored and loaded again.
-    #[inline(always)]
-    pub fn linear_with(&self, tip: &Point3<f64>, rot: &[Rotation3<f64>; 2]) -> [f64; 3] {
-        if self.rotary[0].on == Mount::Table && self.rotary[1].on == Mount::Table {
-            // The common table-table case written out (ik runs it for every block): the
-            // carried rotary turns the tip, then the base one; no head point to take off
-            // (taking off zeros changes nothing, not even a zero's sign).
-            let (c0, c1) = (
-                Vector3::from(self.rotary[0].pivot),
-                Vector3::from(self.rotary[1].pivot),
-            );
-            let on_base = c1 + rot[1] * (tip.coords - c1);
-            let xyz = c0 + rot[0] * (on_base - c0);
-            return [xyz.x, xyz.y, xyz.z];
-        }
-        self.linear_by_chains(tip, rot)
-    }
-
-    /// [`Machine::linear`] for any layout, by the table and head chains.
-    fn linear_by_chains(&self, tip: &Point3<f64>, rot: &[Rotation3<f64>; 2]) -> [f64; 3] {
-        let rot = *rot;
-        let (table, nt) = self.chain(Mount::Table);
-        let (head, nh) = self.chain(Mount::Head);
-        let tip_machine = self.chain_point(&table[..nt], &rot, tip.coords);
-        let xyz = tip_machine - self.chain_point(&head[..nh], &rot, Vector3::zeros());
-        [xyz.x, xyz.y, xyz.z]
-    }
-
-    /// The machine's orientation condition without the tool axis in it, for
-    /// [`Machine::inverse_with`] (a pass that solves every block works it out once).
-    pub fn inverse_layout(&self) -> InverseLayout {
+    /// The machine's orientation condition without the tool axis in it.
+    fn inverse_layout(&self) -> InverseLayout {
         // (w1's rotary, its sign, w2's rotary, its sign, whether the tool axis is p)
         let (ia, sa, ib, sb, axis_is_p) = match self.layout() {
             // R1 R2 t = z  ⇔  Rot(u2, φ2) t = Rot(u1, -φ1) z
@@ -485,69 +275,27 @@ impl Machine {
 
     /// Every rotary orientation (up to two) that points the tool along `axis` (part frame,
     /// unit); empty when the axis pair cannot reach it. Limits are not applied here.
-    pub fn inverse(&self, axis: Unit<Vector3<f64>>) -> SmallVec<[Orientation; 2]> {
-        let found = self.inverse_with(&self.inverse_layout(), axis);
-        SmallVec::from_slice(found.orientations())
+    ///
+    /// Every rotary turns about X, Y or Z, so the vector algebra is written out in
+    /// coordinates; the general vector solution takes the degenerate cases. The sines and
+    /// cosines of the solutions' physical angles come with them
+    /// ([`Solutions::sin_cos`]).
+    pub fn inverse(&self, axis: Unit<Vector3<f64>>) -> Solutions {
+        let layout = self.inverse_layout();
+        self.inverse_coordinates(axis, &layout)
     }
 
-    /// [`Machine::inverse`] with the machine's [`Machine::inverse_layout`] worked out
-    /// beforehand, and the vector algebra written out: every rotary turns about X, Y or Z,
-    /// so a product with a rotation axis is a pick of components. The first orientation is
-    /// the general vector solution's to the bit: a product with 0 or 1 left out changes at
-    /// most the sign of a zero, and where that sign could show (an `atan2` of zero, a
-    /// degenerate case) the general solution runs instead. So is the second one's angle
-    /// where only the sign of the `atan2` argument y differs; an angle whose x argument
-    /// differs only in sign as well is derived from the first by a half turn or a mirror,
-    /// and may differ from `atan2` in the last bit or two. The sines and cosines come from
-    /// the `atan2` arguments.
-    pub fn inverse_with(&self, layout: &InverseLayout, axis: Unit<Vector3<f64>>) -> Solutions {
-        self.inverse_inline(layout, axis)
-    }
-
-    /// [`Machine::inverse_with`], always inlined: `ik` solves every block, and a returned
-    /// [`Solutions`] (144 bytes) is stored piece by piece and loaded again in other widths,
-    /// which stalls on store forwarding; inlined, the values stay in registers.
-    #[inline(always)]
-    pub(crate) fn inverse_inline(
-        &self,
-        layout: &InverseLayout,
-        axis: Unit<Vector3<f64>>,
-    ) -> Solutions {
+    /// [`Machine::inverse`] for the rotation axes `w1` and `w2` of `layout`, along
+    /// coordinates `i1` and `i2` (perpendicular: `i1 != i2`), with the tool axis as `p` or
+    /// `q`. The first orientation is the general vector solution's to the bit: a product
+    /// with 0 or 1 left out changes at most the sign of a zero, and where that sign could
+    /// show (an `atan2` of zero, a degenerate case) the general solution runs instead. So is
+    /// the second one's angle where only the sign of the `atan2` argument y differs; an
+    /// angle whose x argument differs only in sign as well is derived from the first by a
+    /// half turn or a mirror ([`Turn::again`]). The sines and cosines come from the `atan2`
+    /// arguments.
+    fn inverse_coordinates(&self, axis: Unit<Vector3<f64>>, layout: &InverseLayout) -> Solutions {
         let (i1, i2, axis_is_p) = (layout.w1, layout.w2, layout.axis_is_p);
-        // The built-in machines' layouts get copies with the coordinate indices, the
-        // rotaries of α and β and their signs constant (every product picks components by
-        // them, the angles go to fixed places: no index loads, no bounds checks, nothing
-        // kept in memory); the same code runs with them variable for any other.
-        // α the second rotary's angle, β the first's negated: both table-table and
-        // head-head layouts.
-        let carried_first = (layout.ia, layout.ib) == (1, 0)
-            && layout.sa.to_bits() == 1f64.to_bits()
-            && layout.sb.to_bits() == (-1f64).to_bits();
-        let pair = Pair {
-            ia: 1,
-            sa: 1.0,
-            ib: 0,
-            sb: -1.0,
-        };
-        match (i1, i2, axis_is_p, carried_first) {
-            (2, 0, true, true) => self.inverse_coordinates(axis, 2, 0, true, pair),
-            (2, 1, true, true) => self.inverse_coordinates(axis, 2, 1, true, pair),
-            (1, 0, false, true) => self.inverse_coordinates(axis, 1, 0, false, pair),
-            _ => self.inverse_coordinates(axis, i1, i2, axis_is_p, Pair::of(layout)),
-        }
-    }
-
-    /// [`Machine::inverse_with`] for rotation axes `w1` and `w2` along coordinates `i1`
-    /// and `i2` (perpendicular: `i1 != i2`), with the tool axis as `p` or `q`.
-    #[inline(always)]
-    fn inverse_coordinates(
-        &self,
-        axis: Unit<Vector3<f64>>,
-        i1: usize,
-        i2: usize,
-        axis_is_p: bool,
-        pair: Pair,
-    ) -> Solutions {
         let t = [axis.x, axis.y, axis.z];
         // Bounded components keep every product finite, as the left-out ones were
         // (0 · ∞ would not be 0).
@@ -591,7 +339,7 @@ impl Machine {
             return self.inverse_general(axis);
         }
         let first = [Turn::of(alpha), Turn::of(beta)];
-        let (o1, t1) = self.orientation_of(pair, &first);
+        let (o1, t1) = self.orientation_of(layout, &first);
         if zc <= 0.0 {
             return Solutions {
                 found: [o1; 2],
@@ -606,7 +354,7 @@ impl Machine {
         }
         // The second solution's α and β usually follow from the first's.
         let second = [first[0].again(alpha), first[1].again(beta)];
-        let (o2, t2) = self.orientation_of(pair, &second);
+        let (o2, t2) = self.orientation_of(layout, &second);
         Solutions {
             found: [o1, o2],
             trig: [t1, t2],
@@ -615,20 +363,19 @@ impl Machine {
         }
     }
 
-    /// The orientation of angles α and β of a layout's condition (`pair` says whose they
-    /// are), with the sine and cosine of both rotaries' physical angles.
-    #[inline(always)]
+    /// The orientation of angles α and β of `layout`'s condition, with the sine and cosine
+    /// of both rotaries' physical angles.
     fn orientation_of(
         &self,
-        pair: Pair,
+        layout: &InverseLayout,
         [alpha, beta]: &[Turn; 2],
     ) -> (Orientation, [(f64, f64); 2]) {
         let mut phys = [0.0; 2];
         let mut trig = [(0.0, 1.0); 2];
-        phys[pair.ia] = pair.sa * alpha.angle;
-        trig[pair.ia] = (pair.sa * alpha.sin, alpha.cos);
-        phys[pair.ib] = pair.sb * beta.angle;
-        trig[pair.ib] = (pair.sb * beta.sin, beta.cos);
+        phys[layout.ia] = layout.sa * alpha.angle;
+        trig[layout.ia] = (layout.sa * alpha.sin, alpha.cos);
+        phys[layout.ib] = layout.sb * beta.angle;
+        trig[layout.ib] = (layout.sb * beta.sin, beta.cos);
         let o = Orientation {
             angles: [self.joint(0, phys[0]), self.joint(1, phys[1])],
             free: None,
@@ -636,7 +383,7 @@ impl Machine {
         (o, trig)
     }
 
-    /// [`Machine::inverse_with`] by vector algebra, for any rotation axes.
+    /// [`Machine::inverse`] by vector algebra, for any rotation axes.
     fn inverse_general(&self, axis: Unit<Vector3<f64>>) -> Solutions {
         let mut out = Solutions::NONE;
         for o in self.inverse_vectors(axis) {
@@ -731,8 +478,8 @@ impl Machine {
         }
     }
 
-    /// The cosine of [`Machine::singularity_distance`] (no inverse trigonometry: cheap
-    /// enough to test every block against a precomputed cone).
+    /// The cosine of [`Machine::singularity_distance`]: a pass tests every block against
+    /// the cosine of its singularity cone, worked out once.
     pub fn singularity_cos(&self, axis: Unit<Vector3<f64>>) -> f64 {
         let c = self.condition(&axis);
         c.w1.dot(&c.p).abs().max(c.w2.dot(&c.q).abs()).min(1.0)
@@ -786,7 +533,7 @@ mod tests {
     fn check_coordinate_solution(axis: Vector3<f64>) -> Result<(), TestCaseError> {
         let axis = Unit::new_normalize(axis);
         for m in machines() {
-            let fast = m.inverse_with(&m.inverse_layout(), axis);
+            let fast = m.inverse(axis);
             let general = m.inverse_vectors(axis);
             let found = fast.orientations();
             let what = format!("{}: {axis:?}: {found:?} vs {general:?}", m.name);
@@ -868,63 +615,10 @@ mod tests {
             check_coordinate_solution(Vector3::from(v))?;
         }
 
-        /// The table-table linear positions written out are the chains' to the bit.
-        #[test]
-        fn table_table_linear_is_the_chains(
-            px in -300.0f64..300.0, py in -300.0f64..300.0, pz in -300.0f64..300.0,
-            a in -720.0f64..720.0, c in -720.0f64..720.0, zeroed in 0usize..16,
-        ) {
-            let mut v = [px, py, pz, a];
-            for (i, x) in v.iter_mut().enumerate() {
-                if zeroed & (1 << i) != 0 {
-                    *x = 0.0;
-                }
-            }
-            let tip = Point3::new(v[0], v[1], v[2]);
-            for m in machines().iter().filter(|m| m.layout() == Layout::TableTable) {
-                let angles = [v[3], c];
-                let chains = m.linear_by_chains(&tip, &m.rotations(angles));
-                prop_assert_eq!(m.linear(&tip, angles).map(f64::to_bits), chains.map(f64::to_bits));
-            }
-        }
-
-        /// The tip alone is forward kinematics' tip to the bit, every layout.
-        #[test]
-        fn tip_is_the_forward_tip(
-            x in -300.0f64..300.0, y in -300.0f64..300.0, z in -300.0f64..300.0,
-            a in -720.0f64..720.0, c in -720.0f64..720.0, zeroed in 0usize..32,
-        ) {
-            let mut v = [x, y, z, a, c];
-            for (i, w) in v.iter_mut().enumerate() {
-                if zeroed & (1 << i) != 0 {
-                    *w = 0.0;
-                }
-            }
-            let xyz = [v[0], v[1], v[2]];
-            for m in machines() {
-                let rot = m.rotations([v[3], v[4]]);
-                let tip = m.tip_with(&xyz, &rot);
-                let want = m.forward_with(&xyz, &rot).tip;
-                prop_assert_eq!(
-                    tip.coords.map(f64::to_bits),
-                    want.coords.map(f64::to_bits),
-                    "{}: {:?}", m.name, v
-                );
-            }
-        }
-
         /// `atan2` is odd in y to the bit, which the second solution's β relies on.
         #[test]
         fn atan2_is_odd_in_y(y in -10.0f64..10.0, x in -10.0f64..10.0) {
             prop_assert_eq!((-y).atan2(x).to_bits(), (-(y.atan2(x))).to_bits());
         }
-    }
-
-    #[test]
-    fn wrap180_range() {
-        assert_eq!(wrap180(180.0), 180.0);
-        assert_eq!(wrap180(-180.0), 180.0);
-        assert_eq!(wrap180(540.0), 180.0);
-        assert!((wrap180(-190.0) - 170.0).abs() < 1e-12);
     }
 }
