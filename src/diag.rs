@@ -251,19 +251,6 @@ impl fmt::Display for Diagnostic {
 
 impl std::error::Error for Diagnostic {}
 
-// Transitional: a settings error still written as text becomes a settings diagnostic.
-impl From<String> for Diagnostic {
-    fn from(message: String) -> Self {
-        Diagnostic::settings(message)
-    }
-}
-
-impl From<&str> for Diagnostic {
-    fn from(message: &str) -> Self {
-        Diagnostic::settings(message)
-    }
-}
-
 fn floor_char(s: &str, mut i: usize) -> usize {
     while !s.is_char_boundary(i) {
         i -= 1;

@@ -292,7 +292,7 @@ fn probe_program(args: &ProbeArgs) -> ExitCode {
     };
     let text = match ncpost::heightmap::probe_program(&options) {
         Ok(t) => t,
-        Err(e) => return usage(e),
+        Err(e) => return usage(e.message),
     };
     match args.output.as_deref().filter(|o| o.as_os_str() != "-") {
         None => {
@@ -328,7 +328,7 @@ fn config_g(args: &PresetArgs) -> ExitCode {
         return usage("this preset has no [machine] table; try --preset emoc-x5");
     };
     if let Err(e) = machine.check() {
-        return usage(format!("[machine]: {e}"));
+        return usage(format!("[machine]: {}", e.message));
     }
     print_out(format_args!("{}", machine.config_g()));
     ExitCode::SUCCESS

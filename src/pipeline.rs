@@ -159,7 +159,7 @@ impl Builder {
         }
         if let Some(m) = &self.preset.machine {
             m.check()
-                .map_err(|e| Diagnostic::settings(format!("[machine]: {e}")))?;
+                .map_err(|e| Diagnostic::settings(format!("[machine]: {}", e.message)))?;
         }
         let context = passes::Context {
             machine: self.preset.machine.as_ref(),

@@ -74,17 +74,6 @@ pub fn scan_decimal(b: &[u8], mut at: usize) -> Option<(f64, usize)> {
     }
 }
 
-/// [`scan_decimal`] under its former name, for the CL reader (`front/cl/scan.rs`) until it
-/// calls [`scan_decimal`] itself; then this goes.
-///
-/// ```
-/// use ncpost::num::scan_decimal_wide;
-/// assert_eq!(scan_decimal_wide(b"GOTO/40.060853,0.1", 5), Some((40.060853, 14)));
-/// ```
-pub fn scan_decimal_wide(b: &[u8], at: usize) -> Option<(f64, usize)> {
-    scan_decimal(b, at)
-}
-
 /// Reads the ASCII digits of `b` from `at` into `mantissa` (wrapping: the caller counts
 /// the digits and refuses too many); returns where they end.
 fn read_digits(b: &[u8], mut at: usize, mantissa: &mut u64) -> usize {
@@ -96,38 +85,6 @@ fn read_digits(b: &[u8], mut at: usize, mantissa: &mut u64) -> usize {
     }
     at
 }
-
-/// `b'0'` in every byte of a word of eight characters (the printer adds it to digit
-/// values to make their characters).
-pub(crate) const ZEROS: u64 = 0x3030_3030_3030_3030;
-
-/// The high bit of each byte of `v` (eight characters XORed with [`ZEROS`]) that is not
-/// a digit. Used by the CL reader (`front/cl/scan.rs`) only.
-pub(crate) fn not_digit(v: u64) -> u64 {
-    (v.wrapping_add(0x7676_7676_7676_7676) | v) & 0x8080_8080_8080_8080
-}
-
-/// The number written by eight digit values (0..=9), one per byte, the first (lowest)
-/// byte the leading digit. Used by the CL reader (`front/cl/scan.rs`) only.
-pub(crate) fn eight_digits(v: u64) -> u64 {
-    let v = (v.wrapping_mul(10 * 256 + 1) >> 8) & 0x00ff_00ff_00ff_00ff;
-    let v = (v.wrapping_mul(100 * 65_536 + 1) >> 16) & 0x0000_ffff_0000_ffff;
-    v.wrapping_mul(10_000 * (1 << 32) + 1) >> 32
-}
-
-/// `10^n` for the printer's digit counts (up to 10^9) and the CL reader.
-pub(crate) const POW10_INT: [u64; 10] = [
-    1,
-    10,
-    100,
-    1_000,
-    10_000,
-    100_000,
-    1_000_000,
-    10_000_000,
-    100_000_000,
-    1_000_000_000,
-];
 
 /// `±mantissa / 10^frac` for a mantissa of at most 15 digits: both are exact in f64, so
 /// the one division rounds correctly (Clinger's fast path), as `str::parse` does. The
@@ -141,7 +98,7 @@ pub(crate) fn exact_decimal(mantissa: u64, frac: usize, negative: bool) -> f64 {
 
 #[cfg(test)]
 mod tests {
-    use super::{eight_digits, parse_decimal, scan_decimal};
+    use super::{parse_decimal, scan_decimal};
 
     #[test]
     fn decimal_fast_path_matches_std() {
@@ -192,19 +149,5 @@ mod tests {
                 proptest::prop_assert_eq!(Some(v.to_bits()), s.parse::<f64>().ok().map(f64::to_bits), "{:?}", s);
             }
         }
-    }
-
-    #[test]
-    fn eight_digits_reads_every_digit_in_every_place() {
-        for place in 0..8 {
-            for d in 0..10u64 {
-                let v = d << (8 * place);
-                assert_eq!(eight_digits(v), d * 10u64.pow(7 - place));
-            }
-        }
-        assert_eq!(
-            eight_digits(u64::from_le_bytes(*b"12345678") ^ 0x3030_3030_3030_3030),
-            12_345_678
-        );
     }
 }

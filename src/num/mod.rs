@@ -13,4 +13,4 @@ pub mod decimal;
 pub mod lexer;
 pub mod print;
 
-pub use decimal::{parse_decimal, scan_decimal, scan_decimal_wide};
+pub use decimal::{parse_decimal, scan_decimal};

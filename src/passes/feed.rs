@@ -31,13 +31,13 @@ use nalgebra::Point3;
 use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
-use crate::back::Decimals;
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target,
 };
 use crate::machine::grid::RotaryGrid;
 use crate::machine::{FeedRule, Machine, Turns};
+use crate::num::print::Decimals;
 use crate::num::print::{from_units, to_units};
 
 /// Options of `feed`.

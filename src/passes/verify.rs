@@ -38,14 +38,8 @@ impl Check for Verify {
 
 impl Verify {
     fn block(&mut self, block: &Block, diags: &mut Vec<Diagnostic>) {
-        if let Err(e) = self.verifier.check(block) {
-            diags.push(
-                Diagnostic::error("ir::invariant", format!("IR invariant broken: {e}"))
-                    .at_span(block.span)
-                    .with_help(
-                        "a pass before this one produced an invalid block; please report it",
-                    ),
-            );
+        if let Err(d) = self.verifier.check(block) {
+            diags.push(d);
         }
     }
 }

@@ -119,10 +119,10 @@ mod screw;
 use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
-use crate::back::Decimals;
 use crate::diag::Diagnostic;
 use crate::ir::{AXIS_COUNT, Axis, Block, Joints, Span};
 use crate::motion::{self, Model, Planner, Timing};
+use crate::num::print::Decimals;
 
 /// What the pass produces.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -4,7 +4,6 @@
 
 use std::fmt::Write as _;
 
-use crate::back::remember_printed;
 use crate::diag::Diagnostic;
 use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints, MotionKind,
@@ -12,6 +11,7 @@ use crate::ir::{
 };
 use crate::machine::FeedRule;
 use crate::motion::{self, Segment, Timed};
+use crate::num::print::remember_printed;
 use crate::num::print::{printed, write_fixed};
 
 use super::{ExtrudeRate, Item, Limit, Mode, Output, Role, Rule, material};

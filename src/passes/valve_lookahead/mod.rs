@@ -122,10 +122,10 @@ use std::collections::{HashMap, VecDeque};
 use serde::{Deserialize, Serialize};
 
 use super::{Context, Output, Pass, PassInfo};
-use crate::back::Decimals;
 use crate::diag::Diagnostic;
 use crate::ir::{AXIS_COUNT, Axis, Block, Joints, Span};
 use crate::motion::{self, Model, Segment, Timing};
+use crate::num::print::Decimals;
 
 use place::Event;
 use window::Item;
