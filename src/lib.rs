@@ -27,6 +27,7 @@ pub mod passes;
 pub mod pipeline;
 pub mod plot;
 pub mod preset;
+pub mod valid;
 
 pub use diag::{Diagnostic, Kind, Severity};
 pub use pipeline::Pipeline;

@@ -26,11 +26,11 @@ use std::path::Path;
 use ncpost::back::gcode;
 use ncpost::diag::Diagnostic;
 use ncpost::front::gcode::{Options as GOptions, parse_str};
-use ncpost::ir::verify::Verifier;
 use ncpost::ir::{Axis, Block, BlockKind, FeedMode, Joints, Motion, MotionKind, Target};
 use ncpost::passes::{self, Context};
 use ncpost::pipeline::Pipeline;
 use ncpost::preset::Preset;
+use ncpost::valid::Verifier;
 use proptest::prelude::*;
 
 const XYZ: [Axis; 3] = [Axis::X, Axis::Y, Axis::Z];

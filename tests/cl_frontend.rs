@@ -19,8 +19,8 @@ use nalgebra::{Point3, Vector3};
 use ncpost::diag::{Diagnostic, Severity};
 use ncpost::front::Frontend;
 use ncpost::front::cl::{Options, Parser, Program, Units, parse_str};
-use ncpost::ir::verify::Verifier;
 use ncpost::ir::{Block, BlockKind, FeedMode, Motion, MotionKind, Pose, Span, Target, dump};
+use ncpost::valid::Verifier;
 use proptest::prelude::*;
 
 // ---------------------------------------------------------------------------------------

@@ -23,13 +23,13 @@ use ncpost::back::{Backend, gcode as plain, rrf};
 use ncpost::diag::Diagnostic;
 use ncpost::front::Frontend;
 use ncpost::front::gcode::{Options, Parser, parse_str};
-use ncpost::ir::verify::Verifier;
 use ncpost::ir::{
     Axis, AxisSet, Block, BlockKind, Joints, MotionKind, Plane, Target, VerbatimReason, dump,
 };
 use ncpost::num::lexer::{Tok, lex_line};
 use ncpost::pipeline::compile_str;
 use ncpost::preset::Preset;
+use ncpost::valid::Verifier;
 
 // ---------------------------------------------------------------------------------------
 // Part 1: fixture snapshots

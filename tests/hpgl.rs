@@ -20,9 +20,9 @@ use std::path::{Path, PathBuf};
 use ncpost::diag::Diagnostic;
 use ncpost::front::Frontend;
 use ncpost::front::hpgl::{Options, Parser, parse_str};
-use ncpost::ir::verify::Verifier;
 use ncpost::pipeline::{Pipeline, Source};
 use ncpost::preset::Preset;
+use ncpost::valid::Verifier;
 use proptest::prelude::*;
 
 // ---------------------------------------------------------------------------------------

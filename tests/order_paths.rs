@@ -20,10 +20,10 @@ use std::path::{Path, PathBuf};
 use ncpost::diag::Diagnostic;
 use ncpost::front::gcode::{Options, parse_str};
 use ncpost::ir::Block;
-use ncpost::ir::verify::Verifier;
 use ncpost::passes::{self, Context, Output};
 use ncpost::pipeline::{Pipeline, Source};
 use ncpost::preset::Preset;
+use ncpost::valid::Verifier;
 use proptest::prelude::*;
 
 // ---------------------------------------------------------------------------------------

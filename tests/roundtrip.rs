@@ -23,11 +23,11 @@ use std::path::PathBuf;
 use ncpost::Diagnostic;
 use ncpost::back::{CommentOutput, Decimals, gcode, rrf};
 use ncpost::front::gcode::{Options as FrontOptions, parse_str};
-use ncpost::ir::verify::Verifier;
 use ncpost::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Command, CommentStyle, Motion, MotionKind, Span,
     Target,
 };
+use ncpost::valid::Verifier;
 use proptest::prelude::*;
 use proptest::test_runner::{Config as ProptestConfig, TestCaseError, TestRunner};
 

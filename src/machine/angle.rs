@@ -69,7 +69,7 @@ mod tests {
     #[test]
     fn turns_within_limits() {
         assert_eq!(turn_within(370.0, -90.0, 90.0, None), Some(10.0));
-        assert_eq!(turn_within(10.0, -90.0, 720.0, Some(700.0)), Some(730.0));
+        assert_eq!(turn_within(10.0, -90.0, 720.0, Some(700.0)), Some(370.0));
         assert_eq!(turn_within(10.0, -90.0, 300.0, Some(1000.0)), Some(10.0));
         assert_eq!(
             turn_within(90.0 + LIMIT_SLACK, -90.0, 90.0, None),

@@ -34,6 +34,7 @@ use super::{Context, Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Axis, AxisSet, Block, BlockKind, FeedMode, Joints, MotionKind, Span, Target,
+    Tracker,
 };
 use crate::machine::grid::RotaryGrid;
 use crate::machine::{FeedRule, Machine, Turns};
@@ -462,8 +463,8 @@ impl Feed {
         match &mut block.kind {
             BlockKind::Motion(m) => {
                 let Target::Joints(end) = &m.target else {
-                    // A pose this late means the joints are not known.
-                    self.prev = Joints::default();
+                    // A pose this late: the axes it writes are not known.
+                    self.follow(|t| t.motion(m));
                     return None;
                 };
                 if matches!(m.kind, MotionKind::Linear)
@@ -485,30 +486,26 @@ impl Feed {
                         _ => self.warn_missing(span, diags),
                     }
                 }
-                self.prev = *end;
+                self.follow(|t| t.motion(m));
                 if m.machine_frame {
-                    self.prev.forget(m.written);
                     next_read = None;
                 }
             }
             BlockKind::Offset(o) => {
                 self.set_offsets(o.offsets);
-                for a in o.declared.known.iter() {
-                    if self.prev.get(a).is_none() {
-                        self.prev
-                            .set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
-                    }
-                }
+                self.follow(|t| {
+                    t.offset(o);
+                });
             }
             BlockKind::Command(c) => {
-                self.prev.forget(c.clobbers);
+                self.follow(|t| t.forget(c.clobbers));
                 // A command that moves no axis leaves the reading as it is.
                 if c.clobbers.is_empty() {
                     next_read = prev_read;
                 }
             }
             BlockKind::Verbatim(v) => {
-                self.prev.forget(v.clobbers);
+                self.follow(|t| t.forget(v.clobbers));
                 if v.clobbers.is_empty() {
                     next_read = prev_read;
                 }
@@ -517,6 +514,14 @@ impl Feed {
             BlockKind::Dwell { .. } | BlockKind::Comment => next_read = prev_read,
         }
         next_read
+    }
+
+    /// Moves the position the next move starts from as the IR's one position tracker
+    /// ([`Tracker`]) says `change` does.
+    fn follow(&mut self, change: impl FnOnce(&mut Tracker)) {
+        let mut tracker = Tracker::at(self.prev);
+        change(&mut tracker);
+        self.prev = *tracker.pos();
     }
 
     /// `feed::missing` for a cutting move without a feed rate.

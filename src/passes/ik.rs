@@ -41,7 +41,7 @@ use serde::{Deserialize, Serialize};
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, OffsetCode, Span, Target,
+    Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, Span, Target, Tracker,
 };
 use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within};
 use crate::machine::{Machine, Orientation, Prefer, Turns};
@@ -548,31 +548,17 @@ impl Ik {
         true
     }
 
-    /// What a block other than a pose motion tells the pass about the axes.
+    /// What a block other than a pose motion tells the pass about the axes: the one
+    /// position tracker of the IR ([`Tracker`]) follows it.
     fn track(&mut self, block: &Block) {
-        match &block.kind {
-            BlockKind::Motion(m) => {
-                if let Target::Joints(j) = &m.target {
-                    self.prev = *j;
-                    if m.machine_frame {
-                        self.prev.forget(m.written);
-                    }
-                    // Joint moves from elsewhere end any hold at a singularity.
-                    self.held = None;
-                }
-            }
-            BlockKind::Command(c) => self.prev.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
-            BlockKind::Offset(o) if o.code == OffsetCode::Set => {
-                // G92 on an unknown axis makes it known (as the backend assumes).
-                for a in o.declared.known.iter() {
-                    if self.prev.get(a).is_none() {
-                        self.prev
-                            .set(a, o.declared.values[a.index()] - o.offsets[a.index()]);
-                    }
-                }
-            }
-            _ => {}
+        let mut tracker = Tracker::at(self.prev);
+        tracker.update(block);
+        self.prev = *tracker.pos();
+        if let BlockKind::Motion(m) = &block.kind
+            && let Target::Joints(_) = &m.target
+        {
+            // Joint moves from elsewhere end any hold at a singularity.
+            self.held = None;
         }
     }
 

@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 use super::{Check, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::Block;
-use crate::ir::verify::Verifier;
+use crate::valid::Verifier;
 
 /// Options of `verify`.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]

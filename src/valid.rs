@@ -1,4 +1,6 @@
-//! Checks the IR invariants listed in [`crate::ir`] on a block stream.
+//! The validator: checks the IR invariants listed in [`crate::ir`] on a block stream.
+//! It sits beside the IR, not in it, because it reports [`Diagnostic`]s, which point at
+//! the IR's spans.
 
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
@@ -8,7 +10,7 @@ use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
 ///
 /// ```
 /// use ncpost::front::gcode::{parse_str, Options};
-/// use ncpost::ir::verify::Verifier;
+/// use ncpost::valid::Verifier;
 /// let p = parse_str("G0 X0 Y0\nG2 X10 Y0 I5 J0 F100\n", &Options::default()).unwrap();
 /// let mut v = Verifier;
 /// assert!(p.blocks.iter().all(|b| v.check(b).is_ok()));
