@@ -802,65 +802,14 @@ struct GcodeLowering(front::gcode::Options);
 /// A body being lowered by the G-code frontend.
 struct GcodeBody(front::gcode::Lowerer);
 
-mod relower_states {
-    //! The frontend's lowering state and the IR's modal state are the same fields.
-    use crate::front::gcode::{LowerState, MotionMode as FrontMode};
-    use crate::ir::{Modal, MotionMode};
-
-    pub(super) fn to_ir(s: LowerState) -> Modal {
-        Modal {
-            motion: match s.motion {
-                FrontMode::None => MotionMode::None,
-                FrontMode::Rapid => MotionMode::Rapid,
-                FrontMode::Linear => MotionMode::Linear,
-                FrontMode::Arc { clockwise } => MotionMode::Arc { clockwise },
-                FrontMode::Unsupported => MotionMode::Unsupported,
-            },
-            plane: s.plane,
-            inch: s.inch,
-            relative: s.relative,
-            relative_e: s.relative_e,
-            arc_center_absolute: s.arc_center_absolute,
-            feed_mode: s.feed_mode,
-            feed: s.feed,
-            pos: s.pos,
-            offsets: s.offsets,
-            suspended: s.suspended,
-        }
-    }
-
-    pub(super) fn to_front(s: Modal) -> LowerState {
-        LowerState {
-            motion: match s.motion {
-                MotionMode::None => FrontMode::None,
-                MotionMode::Rapid => FrontMode::Rapid,
-                MotionMode::Linear => FrontMode::Linear,
-                MotionMode::Arc { clockwise } => FrontMode::Arc { clockwise },
-                MotionMode::Unsupported => FrontMode::Unsupported,
-            },
-            plane: s.plane,
-            inch: s.inch,
-            relative: s.relative,
-            relative_e: s.relative_e,
-            arc_center_absolute: s.arc_center_absolute,
-            feed_mode: s.feed_mode,
-            feed: s.feed,
-            pos: s.pos,
-            offsets: s.offsets,
-            suspended: s.suspended,
-        }
-    }
-}
-
 impl passes::expand_subprograms::lower::Lowering for GcodeLowering {
     fn start(&self) -> crate::ir::Modal {
-        relower_states::to_ir(front::gcode::Lowerer::new(self.0.clone()).state())
+        front::gcode::Lowerer::new(self.0.clone()).state()
     }
     fn body(
         &self,
         state: crate::ir::Modal,
     ) -> Box<dyn passes::expand_subprograms::lower::BodyLowerer + '_> {
-        let state = relower_states::to_front(state);
         Box::new(GcodeBody(front::gcode::Lowerer::for_body(
             self.0.clone(),
             state,
@@ -886,10 +835,10 @@ impl passes::expand_subprograms::lower::BodyLowerer for GcodeBody {
         self.0.line(text, span, out, diags);
     }
     fn state(&self) -> crate::ir::Modal {
-        relower_states::to_ir(self.0.state())
+        self.0.state()
     }
     fn set_state(&mut self, state: crate::ir::Modal) {
-        self.0.set_state(relower_states::to_front(state));
+        self.0.set_state(state);
     }
 }
 

@@ -13,7 +13,7 @@
 
 pub mod ast;
 pub use crate::num::lexer;
-pub(crate) use lower::{LowerState, Lowerer, MotionMode, oword_call};
+pub(crate) use lower::{Lowerer, oword_call};
 mod lower;
 
 use std::io::BufRead;

@@ -30,23 +30,8 @@ type Small<T> = SmallVec<[T; 8]>;
 
 const MM_PER_INCH: f64 = 25.4;
 
-/// The motion mode in force (modal group 1).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum MotionMode {
-    /// No motion mode yet (program start, or after a line that was not evaluated).
-    None,
-    /// G0.
-    Rapid,
-    /// G1.
-    Linear,
-    /// G2 (clockwise) or G3.
-    Arc {
-        /// G2.
-        clockwise: bool,
-    },
-    /// A mode the IR does not model (canned cycles, splines, threading).
-    Unsupported,
-}
+/// The motion mode in force (modal group 1): the IR's, which a subprogram body starts in.
+pub(crate) use crate::ir::MotionMode;
 
 /// Lowers lines, keeping the controller's modal state.
 pub(crate) struct Lowerer {
@@ -83,33 +68,9 @@ pub(crate) struct Lowerer {
     calls_inline: bool,
 }
 
-/// The lowering state a subprogram body starts from and leaves behind: everything a
-/// line's meaning depends on (crate-internal API for the `expand-subprograms` pass).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct LowerState {
-    /// Motion mode in force (G0/G1/G2/G3).
-    pub motion: MotionMode,
-    /// Arc plane.
-    pub plane: Plane,
-    /// G20.
-    pub inch: bool,
-    /// G91.
-    pub relative: bool,
-    /// M83 (E relative; G91 moves E relatively too).
-    pub relative_e: bool,
-    /// G90.1.
-    pub arc_center_absolute: bool,
-    /// G93/G94/G95.
-    pub feed_mode: FeedMode,
-    /// Modal feed, mm/min (or the mode's unit).
-    pub feed: Option<f64>,
-    /// Position, IR frame.
-    pub pos: Joints,
-    /// G92 offsets (program = IR + offset).
-    pub offsets: [f64; AXIS_COUNT],
-    /// Offsets suspended by G92.2.
-    pub suspended: Option<[f64; AXIS_COUNT]>,
-}
+/// The lowering state a subprogram body starts from and leaves behind: the IR's
+/// [`Modal`](crate::ir::Modal) (crate-internal API for the `expand-subprograms` pass).
+pub(crate) use crate::ir::Modal as LowerState;
 
 impl Lowerer {
     pub(crate) fn new(options: Options) -> Self {
