@@ -4,8 +4,8 @@
 //! `crate::…` reference that runs against that order, and on a circle of imports between
 //! files.
 //!
-//! `#[cfg(test)]` modules are left out: a test may build its input with any layer.
-//! Comments are left out too, so a doc link to a higher layer is not an import.
+//! Unit tests count too: a test that needs a higher layer lives in `tests/`. Comments are
+//! left out, so a doc link to a higher layer is not an import.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -128,39 +128,16 @@ fn module_of(file: &Path) -> Vec<String> {
     parts
 }
 
-/// The code of a file without comments and without its `#[cfg(test)]` items.
+/// The code of a file without its comments (a doc link to a higher layer is not an
+/// import). Test modules count: a unit test that needs a higher layer belongs in
+/// `tests/`.
 fn code_of(text: &str) -> String {
     let mut out = String::new();
-    let mut skip_depth: Option<i32> = None;
-    let mut depth = 0i32;
-    let mut pending_test = false;
     for line in text.lines() {
         let code = match line.find("//") {
             Some(i) if !line[..i].contains('"') => &line[..i],
             _ => line,
         };
-        let trimmed = code.trim();
-        if skip_depth.is_none() && trimmed.starts_with("#[cfg(test)]") {
-            pending_test = true;
-            continue;
-        }
-        let opens = code.matches('{').count() as i32;
-        let closes = code.matches('}').count() as i32;
-        if pending_test && !trimmed.is_empty() {
-            pending_test = false;
-            if opens > closes {
-                skip_depth = Some(depth);
-            }
-            depth += opens - closes;
-            continue;
-        }
-        depth += opens - closes;
-        if let Some(d) = skip_depth {
-            if depth <= d {
-                skip_depth = None;
-            }
-            continue;
-        }
         out.push_str(code);
         out.push('\n');
     }
@@ -426,7 +403,7 @@ fn strongly_connected<'a>(
 #[test]
 fn the_reader_sees_the_imports_it_must() {
     let code = code_of(
-        "use crate::{ir::Block, back::Decimals};\n// crate::plot in a comment\nfn f() { crate::motion::x(); }\n#[cfg(test)]\nmod tests {\n    use crate::preset::Preset;\n}\n",
+        "use crate::{ir::Block, back::Decimals};\n// crate::plot in a comment\nfn f() { crate::motion::x(); }\n",
     );
     let refs = references(&["passes".into(), "ik".into()], &code);
     let names: Vec<String> = refs.iter().map(|r| r.join("::")).collect();

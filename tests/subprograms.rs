@@ -507,3 +507,13 @@ proptest! {
         prop_assert_eq!(dump_all(&expanded), dump_all(&by_hand), "{}", with_calls);
     }
 }
+
+/// The pass's `[input]` table has the G-code frontend's fields and defaults, so the
+/// bodies of subprograms are lowered as the frontend lowers the main program.
+#[test]
+fn pass_input_is_the_frontend_options() {
+    let ours = toml::to_string(&ncpost::passes::expand_subprograms::lower::Input::default())
+        .expect("serializes");
+    let front = toml::to_string(&ncpost::front::gcode::Options::default()).expect("serializes");
+    assert_eq!(ours, front);
+}

@@ -258,13 +258,7 @@ mod tests {
     fn machines() -> Vec<Machine> {
         ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"]
             .into_iter()
-            .map(|name| {
-                let text = std::fs::read_to_string(format!("passes/{name}.toml")).unwrap();
-                crate::preset::Preset::from_toml(&text)
-                    .unwrap()
-                    .machine
-                    .unwrap()
-            })
+            .map(crate::machine::builtin)
             .collect()
     }
 

@@ -504,11 +504,7 @@ mod tests {
     fn machines() -> Vec<Machine> {
         let mut out = Vec::new();
         for name in ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"] {
-            let text = std::fs::read_to_string(format!("passes/{name}.toml")).unwrap();
-            let m = crate::preset::Preset::from_toml(&text)
-                .unwrap()
-                .machine
-                .unwrap();
+            let m = crate::machine::builtin(name);
             let mut other = m.clone();
             other.rotary[0].zero_offset = 3.25;
             other.rotary[1].zero_offset = -17.5;

@@ -478,3 +478,14 @@ impl Machine {
         config_g::write(self)
     }
 }
+
+/// The `[machine]` table of the built-in preset file `passes/<name>.toml`, for the tests
+/// of the machine and of the passes that use one.
+#[cfg(test)]
+pub(crate) fn builtin(name: &str) -> Machine {
+    let path = format!("{}/passes/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(path).expect("built-in preset file");
+    let preset: toml::Table = toml::from_str(&text).expect("preset TOML");
+    let table = preset.get("machine").expect("a [machine] table").clone();
+    table.try_into().expect("a valid machine")
+}

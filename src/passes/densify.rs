@@ -620,15 +620,7 @@ impl Densify {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn machine(name: &str) -> Machine {
-        let path = format!("{}/passes/{name}.toml", env!("CARGO_MANIFEST_DIR"));
-        let text = std::fs::read_to_string(path).expect("preset file");
-        crate::preset::Preset::from_toml(&text)
-            .expect("preset")
-            .machine
-            .expect("machine")
-    }
+    use crate::machine::builtin as machine;
 
     fn node(d: &Densify, xyz: [f64; 3], angles: [f64; 2]) -> Node {
         let mut j = Joints::default();

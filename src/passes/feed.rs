@@ -538,15 +538,12 @@ impl Feed {
 mod tests {
     use super::*;
     use crate::num::print::printed;
-    use crate::preset::Preset;
     use proptest::prelude::*;
 
     const PRESETS: [&str; 4] = ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"];
 
     fn feed(preset: usize, zero_offsets: [f64; 2], rotary_decimals: u8) -> Feed {
-        let mut m = Preset::builtin(PRESETS[preset])
-            .and_then(|p| p.machine)
-            .expect("a machine");
+        let mut m = crate::machine::builtin(PRESETS[preset]);
         for (r, z) in m.rotary.iter_mut().zip(zero_offsets) {
             r.zero_offset = z;
         }

@@ -756,16 +756,9 @@ impl Ik {
 mod tests {
     use super::*;
     use crate::ir::{Command, Feed, FeedMode, Pose, Span};
+    use crate::machine::builtin as machine;
     use nalgebra::Point3;
     use proptest::prelude::*;
-
-    fn machine(name: &str) -> Machine {
-        let text = std::fs::read_to_string(format!("passes/{name}.toml")).unwrap();
-        crate::preset::Preset::from_toml(&text)
-            .unwrap()
-            .machine
-            .unwrap()
-    }
 
     /// One block of a test program: 0 a rapid, 1 and 2 a linear move to a pose (tool
     /// axis at `theta` from vertical, degrees, at azimuth `phi`), 3 a joint move, 4 a

@@ -1,6 +1,6 @@
 //! What `expand-subprograms` needs of the G-code frontend, as an interface: passes do
 //! not depend on the frontends, so the pipeline hands the pass a [`Relower`] over the
-//! G-code lowerer (`crate::pipeline::gcode_relower`) in [`crate::passes::Context`].
+//! G-code lowerer (the pipeline's `gcode_relower`) in [`crate::passes::Context`].
 
 use serde::{Deserialize, Serialize};
 
@@ -8,7 +8,8 @@ use crate::diag::Diagnostic;
 use crate::ir::{Block, Modal, Span};
 
 /// The frontend options bodies are lowered with: the `[input]` table of the pass, with
-/// the fields and defaults of the G-code frontend's options (a test keeps them equal).
+/// the fields and defaults of the G-code frontend's options (`tests/subprograms.rs`
+/// keeps them equal).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Input {
@@ -72,15 +73,4 @@ pub struct OwordCall {
     pub simple: bool,
     /// Byte range of the label and the keyword in the line, for diagnostics.
     pub at: (usize, usize),
-}
-
-#[cfg(test)]
-mod tests {
-    /// The pass's `[input]` table has the G-code frontend's fields and defaults.
-    #[test]
-    fn input_is_the_frontend_options() {
-        let ours = toml::to_string(&super::Input::default()).expect("serializes");
-        let front = toml::to_string(&crate::front::gcode::Options::default()).expect("serializes");
-        assert_eq!(ours, front);
-    }
 }

@@ -194,7 +194,7 @@ pub struct ExpandSubprograms {
 
 impl ExpandSubprograms {
     /// A pass with `options`, lowering bodies with the lowerer `relower` makes (the
-    /// pipeline's is `crate::pipeline::gcode_relower`).
+    /// pipeline's is its `gcode_relower`).
     pub fn new(options: Options, relower: Option<Relower>) -> Result<Self, Diagnostic> {
         if options.max_depth == 0 {
             return Err(Diagnostic::settings("max_depth must be at least 1"));
