@@ -105,6 +105,45 @@ pub fn has_word(line: &str, letter: char) -> bool {
     )
 }
 
+/// The keywords of LinuxCNC o-word control lines (`o100 sub`, `o<x> if [..]`).
+const OWORD_KEYWORDS: &[&str] = &[
+    "sub",
+    "endsub",
+    "call",
+    "return",
+    "if",
+    "elseif",
+    "else",
+    "endif",
+    "while",
+    "endwhile",
+    "do",
+    "repeat",
+    "endrepeat",
+    "break",
+    "continue",
+];
+
+/// The keyword token of an o-word control line, as written, with its place in `toks`:
+/// the first o-word keyword after the leading `o` word (in `o<name> sub`, not `name`).
+///
+/// ```
+/// use ncpost::num::lexer::{oword_keyword, tokens};
+/// let toks: Vec<_> = tokens("o<sub> SUB").collect();
+/// assert_eq!(oword_keyword(&toks).map(|(_, kw, _)| kw), Some("SUB"));
+/// assert_eq!(oword_keyword(&tokens("G1 X1").collect::<Vec<_>>()), None);
+/// ```
+pub fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<Spanned<'a>> {
+    let first = toks.first()?;
+    let starts_o = matches!(first.1, Tok::Word(w) | Tok::Letter(w) if w.starts_with(['o', 'O']));
+    if !starts_o {
+        return None;
+    }
+    toks.iter().skip(1).copied().find(|t| {
+        matches!(t.1, Tok::Ident(w) if OWORD_KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(w)))
+    })
+}
+
 /// Length up to and including the `)` that closes an already opened comment.
 fn closing_paren(rest: &str) -> Option<usize> {
     let mut depth = 1usize;

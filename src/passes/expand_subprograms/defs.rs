@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use super::{Def, Key};
 use crate::diag::Diagnostic;
 use crate::ir::{Block, BlockKind};
-use crate::num::lexer::{Tok, tokens};
+use crate::num::lexer::{Tok, oword_keyword, tokens};
 
 /// Whether a line has the word `letter``value` (`M98`, `M99`).
 pub(super) fn has_code(text: &str, letter: char, value: f64) -> bool {
@@ -36,32 +36,9 @@ pub(super) fn word_positions(text: &str, letter: char) -> Vec<(usize, usize, Opt
 fn oword_line(text: &str) -> Option<(String, String)> {
     let toks: Vec<_> = tokens(text).collect();
     let first = toks.first()?;
-    let starts_o = matches!(first.1, Tok::Word(w) | Tok::Letter(w) if w.starts_with(['o', 'O']));
-    if !starts_o {
+    let (ks, Tok::Ident(kw), _) = oword_keyword(&toks)? else {
         return None;
-    }
-    // The first identifier that is an o-word keyword (`o<name> sub`: not `name`).
-    const KEYWORDS: &[&str] = &[
-        "sub",
-        "endsub",
-        "call",
-        "return",
-        "if",
-        "elseif",
-        "else",
-        "endif",
-        "while",
-        "endwhile",
-        "do",
-        "repeat",
-        "endrepeat",
-        "break",
-        "continue",
-    ];
-    let (ks, kw, _) = toks.iter().skip(1).find_map(|&(s, t, e)| match t {
-        Tok::Ident(w) if KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(w)) => Some((s, w, e)),
-        _ => None,
-    })?;
+    };
     let raw = text[first.0 + 1..ks].trim();
     Some((normalise_label(raw), kw.to_ascii_lowercase()))
 }

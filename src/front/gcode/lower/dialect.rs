@@ -308,35 +308,10 @@ impl Lowerer {
 
 /// The o-word keyword of a LinuxCNC control line (`o100 sub`, `o<x> if [..]`).
 pub(super) fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<&'a str> {
-    const KEYWORDS: &[&str] = &[
-        "sub",
-        "endsub",
-        "call",
-        "return",
-        "if",
-        "elseif",
-        "else",
-        "endif",
-        "while",
-        "endwhile",
-        "do",
-        "repeat",
-        "endrepeat",
-        "break",
-        "continue",
-    ];
-    let first = toks.first()?.1;
-    let starts_o = match first {
-        Tok::Word(w) | Tok::Letter(w) => w.starts_with(['o', 'O']),
-        _ => false,
-    };
-    if !starts_o {
-        return None;
-    }
-    toks.iter().skip(1).find_map(|t| match t.1 {
-        Tok::Ident(w) if KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(w)) => Some(w),
+    match crate::num::lexer::oword_keyword(toks)?.1 {
+        Tok::Ident(w) => Some(w),
         _ => None,
-    })
+    }
 }
 
 /// An o-word call line (`o100 call`, `o<name> call [1] [2]`), as far as the
