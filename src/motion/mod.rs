@@ -237,8 +237,8 @@ impl Model {
             Some(Feed::PerMinute(f)) => (f / 60.0).max(self.min_speed),
             Some(Feed::InverseTime(f)) => length * f / 60.0,
         };
-        // Constant velocity has no acceleration: its divisions are skipped (they cost more
-        // than the rest of a segment on the hot path of every timed pass).
+        // Constant velocity has no acceleration: the axes' acceleration limits do not
+        // apply to it.
         let accelerates = self.timing != Timing::ConstantVelocity;
         for a in both.iter() {
             let k = a.index();
