@@ -128,9 +128,9 @@ const OWORD_KEYWORDS: &[&str] = &[
 /// the first o-word keyword after the leading `o` word (in `o<name> sub`, not `name`).
 ///
 /// ```
-/// use ncpost::num::lexer::{oword_keyword, tokens};
-/// let toks: Vec<_> = tokens("o<sub> SUB").collect();
-/// assert_eq!(oword_keyword(&toks).map(|(_, kw, _)| kw), Some("SUB"));
+/// use ncpost::num::lexer::{Tok, oword_keyword, tokens};
+/// let toks: Vec<_> = tokens("o<part> SUB").collect();
+/// assert_eq!(oword_keyword(&toks).map(|(_, kw, _)| kw), Some(Tok::Ident("SUB")));
 /// assert_eq!(oword_keyword(&tokens("G1 X1").collect::<Vec<_>>()), None);
 /// ```
 pub fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<Spanned<'a>> {
