@@ -96,10 +96,19 @@ impl Lowerer {
         toks: &[Spanned<'_>],
         diags: &mut Vec<Diagnostic>,
     ) -> Option<Unplain> {
+        // Words, letters and comments alone are the plain block grammar.
+        if toks.iter().all(|t| {
+            matches!(
+                t.1,
+                Tok::Word(_) | Tok::Letter(_) | Tok::Comment(_) | Tok::LineComment(_)
+            )
+        }) {
+            return None;
+        }
         // A checksum ends the line; anything but a comment after it is an error.
         let has_expression = toks
             .iter()
-            .any(|t| matches!(t.1, Tok::Other(c) if "#[]{}=<>@^".contains(c)));
+            .any(|t| matches!(t.1, Tok::Other(c) if is_expression_char(c)));
         if !has_expression
             && let Some(i) = toks.iter().position(|t| matches!(t.1, Tok::Checksum(_)))
             && let Some(&(s, _, e)) = toks[i + 1..]
@@ -119,7 +128,7 @@ impl Lowerer {
         let mut odd = None;
         for (i, &(s, tok, e)) in toks.iter().enumerate() {
             match tok {
-                Tok::Other(c) if "#[]{}=<>@^".contains(c) => {
+                Tok::Other(c) if is_expression_char(c) => {
                     expression.get_or_insert((s, e));
                 }
                 Tok::Other(_) | Tok::Ident(_) | Tok::Number(_) => {
@@ -415,4 +424,13 @@ pub(super) fn strip_line_number_and_comments(text: &str) -> String {
         }
     }
     out
+}
+
+/// Whether a character the lexer has no token for belongs to expression syntax:
+/// parameters (`#`), expressions (`[ ]`), RepRapFirmware `{ }` and comparisons.
+fn is_expression_char(c: &str) -> bool {
+    matches!(
+        c.as_bytes(),
+        [b'#' | b'[' | b']' | b'{' | b'}' | b'=' | b'<' | b'>' | b'@' | b'^']
+    )
 }
