@@ -514,6 +514,42 @@ pub struct Command {
     pub clobbers: AxisSet,
 }
 
+impl Command {
+    /// `M2` / `M30`: the program ends here, and nothing runs after it.
+    ///
+    /// ```
+    /// use ncpost::ir::{AxisSet, Command};
+    /// let c = |t: &str| Command { text: t.into(), modes: None, clobbers: AxisSet::EMPTY };
+    /// assert!(c("M30").ends_program() && c("m02").ends_program());
+    /// assert!(!c("M3 S1000").ends_program() && !c("M0").ends_program());
+    /// ```
+    pub fn ends_program(&self) -> bool {
+        self.has_m_code(&[2, 30])
+    }
+
+    /// `M0`, `M1`, `M2`, `M30`: the machine stops here (a pause, or the end), so
+    /// anything left running (a spindle, a screw) keeps running in the stopped machine.
+    ///
+    /// ```
+    /// use ncpost::ir::{AxisSet, Command};
+    /// let c = |t: &str| Command { text: t.into(), modes: None, clobbers: AxisSet::EMPTY };
+    /// assert!(c("M0").stops_machine() && c("M30").stops_machine());
+    /// assert!(!c("M3 S1000").stops_machine());
+    /// ```
+    pub fn stops_machine(&self) -> bool {
+        self.has_m_code(&[0, 1, 2, 30])
+    }
+
+    /// Whether one of the words is an M code numbered in `codes` (`M02` is M2).
+    fn has_m_code(&self, codes: &[u32]) -> bool {
+        self.text.split_whitespace().any(|w| {
+            w.strip_prefix(['M', 'm'])
+                .and_then(|n| n.parse::<u32>().ok())
+                .is_some_and(|n| codes.contains(&n))
+        })
+    }
+}
+
 /// Why a line travels as text.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum VerbatimReason {

@@ -236,6 +236,17 @@ impl ExtrudeRate {
                 }
                 self.queue.push_other(pass(block));
             }
+            // The screw must not run on in a paused or finished machine: every block
+            // before the stop is timed and put out, then the screw stops, then the stop.
+            BlockKind::Command(c) if c.stops_machine() => {
+                self.queue.finish();
+                self.drain(out);
+                if self.held.is_some_and(|h| h > 0.0) {
+                    self.set_rate(0.0, block.span, out);
+                }
+                self.pos.forget(c.clobbers);
+                self.queue.push_stop(0.0, pass(block));
+            }
             BlockKind::Command(c) if !c.clobbers.is_empty() => {
                 self.pos.forget(c.clobbers);
                 self.queue.push_stop(0.0, pass(block));

@@ -84,7 +84,15 @@ impl Lowerer {
                     out.push(b);
                     return Some(());
                 }
-                MotionKind::Arc(self.arc(text, line_no, clockwise, mv.slots, &target, diags)?)
+                match self.arc(text, line_no, clockwise, mv.slots, &target, diags) {
+                    Some(arc) => MotionKind::Arc(arc),
+                    None => {
+                        // The block is refused, but its end point is as written: the
+                        // blocks after it start there, and report their own errors only.
+                        self.pos = target;
+                        return None;
+                    }
+                }
             }
             MotionMode::None | MotionMode::Unsupported => return None,
         };
