@@ -94,6 +94,7 @@ mod motion;
 mod options;
 mod read;
 mod source;
+mod spline;
 
 use std::io::BufRead;
 
@@ -102,7 +103,7 @@ use crate::front::Frontend;
 use crate::ir::Block;
 
 pub use crate::front::gcode::Program;
-pub use options::{Options, Units};
+pub use options::{Msys, Options, Units};
 
 /// Streaming CL frontend over any buffered reader; memory stays bounded (lines, one
 /// statement, a bounded look at the start, arcs handed out piece by piece).
@@ -127,6 +128,8 @@ pub struct Parser<R> {
     pending: Vec<Block>,
     started: bool,
     done: bool,
+    /// `stmt` ended a spline and waits until the spline's pieces are handed out.
+    held: bool,
 }
 
 impl<R: BufRead> Parser<R> {
@@ -139,6 +142,7 @@ impl<R: BufRead> Parser<R> {
             pending: Vec::new(),
             started: false,
             done: false,
+            held: false,
         }
     }
 
@@ -154,12 +158,20 @@ impl<R: BufRead> Parser<R> {
                 self.lower.expand(out, want - out.len());
                 continue;
             }
+            if std::mem::take(&mut self.held) {
+                self.lower.statement(&self.stmt, out, diags);
+                continue;
+            }
             if self.done {
                 break;
             }
             let join = !self.lower.is_triplet();
             if self.source.next_statement(&mut self.stmt, join, diags) {
-                self.lower.statement(&self.stmt, out, diags);
+                // A statement after a NURBS's records comes after its pieces.
+                self.held = self.lower.closes_spline(&self.stmt, diags);
+                if !self.held {
+                    self.lower.statement(&self.stmt, out, diags);
+                }
                 continue;
             }
             self.done = true;
