@@ -106,6 +106,17 @@ impl Pending {
                 "too few knots or too many control points: the records are incomplete",
             ));
         };
+        if n < p + 1 {
+            return Err(self.error(
+                format!(
+                    "the NURBS on line {} has {n} control points and {m} knots: degree {p}, \
+                     which needs at least {} control points",
+                    self.span.line,
+                    p + 1
+                ),
+                "too few CNTRL/ records for the knot vector: the records are incomplete",
+            ));
+        }
         if let Some(d) = self.degree
             && d != p
         {
