@@ -22,6 +22,11 @@ fn ncpost(args: &[&str]) -> Output {
         .expect("run ncpost")
 }
 
+/// Compiles `path` under `preset`, listing the IR after the frontend on standard error.
+fn dump_front(preset: &str, path: &str) -> Output {
+    ncpost(&["run", "--preset", preset, "--dump-after", "front", path])
+}
+
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
@@ -249,14 +254,7 @@ fn nurbs_control_points_with_tool_axes_turn_the_tool() {
          CNTRL/0,0,0,0,0,1\nCNTRL/50,0,20,{s},0,{c}\nCNTRL/100,0,0,0,0,1\nGOTO/100,0,0\n"
     );
     let path = scratch("nurbs_axes.cl", &cl);
-    let o = ncpost(&[
-        "run",
-        "--preset",
-        "trunnion-bc",
-        "--dump-after",
-        "front",
-        &path,
-    ]);
+    let o = dump_front("trunnion-bc", &path);
     assert!(o.status.success(), "{}", stderr(&o));
     let poses = dumped_poses(&stderr(&o));
     assert!(poses.len() > 10);
@@ -324,14 +322,7 @@ fn nurbs_that_cannot_be_evaluated_is_an_error_at_its_line() {
 #[test]
 fn msys_is_ignored_by_default_like_nx_posts_with_one_warning() {
     let path = "tests/fixtures/cl/nx_variable_axis.cl";
-    let o = ncpost(&[
-        "run",
-        "--preset",
-        "trunnion-bc",
-        "--dump-after",
-        "front",
-        path,
-    ]);
+    let o = dump_front("trunnion-bc", path);
     let err = stderr(&o);
     assert_eq!(err.matches("cl::msys-not-applied").count(), 1, "{err}");
     let poses = dumped_poses(&err);
@@ -348,7 +339,7 @@ fn msys_is_ignored_by_default_like_nx_posts_with_one_warning() {
 fn msys_applied_moves_points_by_its_origin() {
     let path = "tests/fixtures/cl/nx_variable_axis.cl";
     let preset = apply_preset();
-    let o = ncpost(&["run", "--preset", &preset, "--dump-after", "front", path]);
+    let o = dump_front(&preset, path);
     let err = stderr(&o);
     assert!(!err.contains("cl::msys-not-applied"), "{err}");
     let poses = dumped_poses(&err);
@@ -382,7 +373,7 @@ fn rotated_msys_applied_is_the_matrix_transform_and_ignored_names_itself_in_ik_h
 
     // Applied: p = origin + R p_mcs, a = R a_mcs with R = (X, Y, X × Y) of the MSYS.
     let preset = apply_preset();
-    let o = ncpost(&["run", "--preset", &preset, "--dump-after", "front", rotated]);
+    let o = dump_front(&preset, rotated);
     let err = stderr(&o);
     assert!(o.status.success(), "{err}");
     let poses = dumped_poses(&err);

@@ -142,7 +142,7 @@ impl Pending {
             ));
         }
         let (u0, u1) = (self.knots[p], self.knots[n]);
-        if !(u1 > u0) {
+        if u1 <= u0 {
             return Err(self.error(
                 format!(
                     "the NURBS on line {} has no length: its knots are all equal",
@@ -215,8 +215,9 @@ impl Curve {
             for j in (r..=p).rev() {
                 let i = j + k - p;
                 let alpha = (u - self.knots[i]) / (self.knots[i + p + 1 - r] - self.knots[i]);
-                for c in 0..7 {
-                    d[j][c] = (1.0 - alpha) * d[j - 1][c] + alpha * d[j][c];
+                let prev = d[j - 1];
+                for (x, y) in d[j].iter_mut().zip(prev) {
+                    *x = (1.0 - alpha) * y + alpha * *x;
                 }
             }
         }

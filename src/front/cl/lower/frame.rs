@@ -274,7 +274,7 @@ fn read_control(
     let v = a.numbers()?;
     let weighted = v.len() == 4 || v.len() == 7;
     let w = if weighted { v[3] } else { 1.0 };
-    if !(w > 0.0) {
+    if w <= 0.0 {
         let x = &a.list[3];
         return Err(a.stmt.locate(
             Diagnostic::error("cl::nurbs", "a NURBS weight must be positive")
