@@ -618,6 +618,25 @@ pub enum BlockKind {
     Comment,
 }
 
+/// The comment a frontend adds to the statement that sets a rotated coordinate frame it
+/// does not apply to the tool poses that follow (NX `MSYS` under `msys = "ignore"`, APT
+/// `CSYS`). A pass that finds tool axes it cannot reach says so in its help: the frame
+/// may be why.
+pub const FRAME_NOT_APPLIED: &str = " ncpost: rotated frame not applied to the points";
+
+/// Whether `block` carries the [`FRAME_NOT_APPLIED`] note.
+///
+/// ```
+/// use ncpost::ir::{Block, BlockKind, Comment, CommentStyle, Span, FRAME_NOT_APPLIED, frame_not_applied};
+/// let mut b = Block::new(Span::default(), BlockKind::Comment);
+/// assert!(!frame_not_applied(&b));
+/// b.comments.push(Comment { text: FRAME_NOT_APPLIED.into(), style: CommentStyle::Semicolon });
+/// assert!(frame_not_applied(&b));
+/// ```
+pub fn frame_not_applied(block: &Block) -> bool {
+    block.comments.iter().any(|c| c.text == FRAME_NOT_APPLIED)
+}
+
 /// One statement of the program.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Block {
