@@ -1,0 +1,166 @@
+//! Controller truth for the polar printer (issue 20, defect 1): the printed program is
+//! re-read the way RepRapFirmware reads it, by a reader written here and independent of
+//! ncpost's frontend and motion model, and the valve opens and closes its delay ahead of
+//! every extrusion start and end, whatever F the travels carry, in FDM mode (`G0` at the
+//! modal F) and in CNC mode (`G0` at the `M203` caps).
+
+use ncpost::pipeline::compile_str;
+use ncpost::preset::Preset;
+
+const OPEN: &str = "M42 P0 S1";
+const CLOSE: &str = "M42 P0 S0";
+
+/// How the firmware runs `G0`.
+#[derive(Clone, Copy, Debug)]
+enum Mode {
+    /// RepRapFirmware in FDM mode: `G0` is `G1`, at the one modal F.
+    Fdm,
+    /// RepRapFirmware in CNC mode: `G0` at the axes' caps, F ignored.
+    Cnc,
+}
+
+/// What happens at a moment of the printed program.
+#[derive(Debug, PartialEq)]
+enum Event {
+    Open,
+    Close,
+    /// The screw starts (`M3 S` > 0) or stops.
+    Screw(bool),
+}
+
+/// The word `letter` of a line, read as a number.
+fn word(line: &str, letter: char) -> Option<f64> {
+    line.split_whitespace()
+        .find_map(|w| w.strip_prefix(letter)?.parse().ok())
+}
+
+/// Times the printed program as RepRapFirmware does with the polar-printer preset's
+/// controller (constant velocity: r on X at 6000 mm/min, θ on Y at 10800 deg/min, F the
+/// Euclidean joint speed, at least 6 mm/min): the moments of the valve and screw events.
+fn events(text: &str, mode: Mode) -> Vec<(f64, Event)> {
+    let caps = [6000.0 / 60.0, 10800.0 / 60.0];
+    // RepRapFirmware starts at F3000 until a line sets F.
+    let (mut pos, mut feed, mut clock) = ([0.0f64; 2], 3000.0, 0.0);
+    let mut out = Vec::new();
+    for line in text.lines() {
+        let line = line.split(';').next().unwrap_or("").trim();
+        if line == OPEN || line == CLOSE {
+            let e = if line == OPEN {
+                Event::Open
+            } else {
+                Event::Close
+            };
+            out.push((clock, e));
+            continue;
+        }
+        if line.starts_with("M3 ") {
+            let rpm = word(line, 'S').expect("M3 S");
+            out.push((clock, Event::Screw(rpm > 0.0)));
+            continue;
+        }
+        if line.starts_with("G4") {
+            clock += word(line, 'P').expect("G4 P") / 1000.0;
+            continue;
+        }
+        let rapid = line.starts_with("G0");
+        if !(rapid || line.starts_with("G1")) {
+            continue;
+        }
+        if let Some(f) = word(line, 'F') {
+            feed = f;
+        }
+        let next = [
+            word(line, 'X').unwrap_or(pos[0]),
+            word(line, 'Y').unwrap_or(pos[1]),
+        ];
+        let d = [next[0] - pos[0], next[1] - pos[1]];
+        let len = d[0].hypot(d[1]);
+        if len > 0.0 {
+            // The fastest speed along the move that keeps every axis within its cap.
+            let capped = (0..2)
+                .filter(|&k| d[k] != 0.0)
+                .map(|k| caps[k] * len / d[k].abs())
+                .fold(f64::INFINITY, f64::min);
+            let speed = match (mode, rapid) {
+                (Mode::Cnc, true) => capped,
+                _ => (feed / 60.0).max(6.0 / 60.0).min(capped),
+            };
+            clock += len / speed;
+        }
+        pos = next;
+    }
+    out
+}
+
+/// The worst difference between each valve event's lead and its delay (open 0.2 s
+/// before the screw starts, close 0.1 s before it stops), and the number of runs.
+fn worst_lead(events: &[(f64, Event)]) -> (f64, usize) {
+    let (mut worst, mut runs, mut opened) = (0.0f64, 0, None);
+    let mut closed = None;
+    for (t, e) in events {
+        match e {
+            Event::Open => opened = Some(*t),
+            Event::Close => closed = Some(*t),
+            Event::Screw(true) => {
+                let o = opened.take().expect("opened before the screw starts");
+                worst = worst.max((t - o - 0.2).abs());
+                runs += 1;
+            }
+            Event::Screw(false) => {
+                if let Some(c) = closed.take() {
+                    worst = worst.max((t - c - 0.1).abs());
+                }
+            }
+        }
+    }
+    (worst, runs)
+}
+
+fn preset(mode: Mode) -> Preset {
+    let mut p = Preset::builtin("polar-printer").expect("preset");
+    let polar = p.polar.as_mut().expect("[polar]");
+    polar.controller.flavour = Some(match mode {
+        Mode::Fdm => ncpost::machine::Flavour::RrfFdm,
+        Mode::Cnc => ncpost::machine::Flavour::RrfCnc,
+    });
+    p
+}
+
+/// Two extrusion runs with travels at `travel` (a word such as `F6000`, or nothing: the
+/// modal F of the run before).
+fn program(travel: &str) -> String {
+    format!(
+        "G21\nG90\nM82\nG0 X10 Y0 {travel}\nG1 X20 Y0 E0.4 F1200\nG0 X40 Y0 {travel}\n\
+         G1 X50 Y0 E0.8 F1200\nG0 X80 Y0 {travel}\nG1 X100 Y0 E1.6 F900\n"
+    )
+}
+
+#[test]
+fn valve_leads_hold_for_travels_at_any_feed_in_both_modes() {
+    for mode in [Mode::Fdm, Mode::Cnc] {
+        for travel in ["F6000", "F2400", "F900", "F12000", ""] {
+            let out = compile_str(&program(travel), &preset(mode)).expect("compiles");
+            let (worst, runs) = worst_lead(&events(&out, mode));
+            assert_eq!(runs, 3, "{mode:?} {travel}\n{out}");
+            // The firmware reads `G4 P` in whole milliseconds: within half of one.
+            assert!(worst <= 5e-4 + 1e-9, "{mode:?} {travel}: {worst} s\n{out}");
+        }
+    }
+}
+
+#[test]
+fn fdm_travels_carry_the_feed_they_were_timed_at() {
+    let out = compile_str(&program("F6000"), &preset(Mode::Fdm)).expect("compiles");
+    // F is one modal value for G0 and G1: each travel after a cut restores F6000 (the
+    // cut left it at 1200 or 900).
+    let mut feed = None;
+    let mut travels = 0;
+    for l in out.lines() {
+        feed = word(l, 'F').or(feed);
+        if l.starts_with("G0 ") {
+            assert_eq!(feed, Some(6000.0), "{l}\n{out}");
+            travels += 1;
+        }
+    }
+    assert!(travels >= 3, "{out}");
+}
