@@ -164,3 +164,50 @@ fn fdm_travels_carry_the_feed_they_were_timed_at() {
     }
     assert!(travels >= 3, "{out}");
 }
+
+/// PrusaSlicer's start code for a Prusa MINI (`M201`, `M203 X180 Y180 Z12 E80` in Marlin's
+/// mm/s, `M204`, `M205`, `M221`, `M900`) must not reach the polar printer's firmware,
+/// which would cap r at 3 mm/s and θ at 3°/s against the model every pass timed with.
+#[test]
+fn slicer_machine_settings_become_comments_with_one_warning() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../shared/corpus/gcode/gcodenom_both_prusaslicer_mini.gcode"
+    );
+    let src = std::fs::read_to_string(path).expect("corpus file");
+    let mut preset = preset(Mode::Fdm);
+    preset
+        .passes
+        .iter_mut()
+        .find(|p| p.name == "polar-ik")
+        .expect("polar-ik")
+        .options
+        .insert(
+            "center".into(),
+            toml::Value::try_from([90.0, 90.0]).expect("array"),
+        );
+    let mut pipeline = ncpost::pipeline::Pipeline::builder()
+        .preset(preset)
+        .build()
+        .expect("builds");
+    let (mut out, mut diags) = (Vec::new(), Vec::new());
+    pipeline
+        .run_gcode(src.as_bytes(), &mut out, &mut |d| diags.push(d))
+        .expect("runs");
+    let out = String::from_utf8(out).expect("text");
+    let settings = [
+        "M92", "M201", "M203", "M204", "M205", "M207", "M220", "M221", "M566", "M900",
+    ];
+    for line in out.lines() {
+        let first = line.split_whitespace().next().unwrap_or("");
+        assert!(!settings.contains(&first), "{line}");
+    }
+    assert!(out.contains(";M203 X180 Y180 Z12 E80"), "kept as a comment");
+    let warned: Vec<_> = diags
+        .iter()
+        .filter(|d| d.code == "machine-settings::commented")
+        .collect();
+    assert_eq!(warned.len(), 1, "{diags:?}");
+    assert!(warned[0].message.contains("M203 X180 Y180 Z12 E80"));
+    assert!(!diags.iter().any(|d| d.is_error()), "{diags:?}");
+}
