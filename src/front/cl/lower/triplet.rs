@@ -127,7 +127,7 @@ fn numbers(stmt: &Statement) -> Result<Vector3<f64>, Diagnostic> {
         }
         match crate::num::parse_decimal(field) {
             Some(x)
-                if x.is_finite()
+                if crate::num::range::in_range(x)
                     && field
                         .bytes()
                         .all(|b| b.is_ascii_digit() || b"+-.eE".contains(&b)) =>
@@ -138,10 +138,16 @@ fn numbers(stmt: &Statement) -> Result<Vector3<f64>, Diagnostic> {
                 return Err(stmt.locate(
                     Diagnostic::error(
                         "cl::bad-number",
-                        format!("expected a number, found `{field}`"),
+                        format!(
+                            "expected a number, found `{}`",
+                            crate::num::range::shown(field)
+                        ),
                     )
-                    .with_label("not a number")
-                    .with_help("a triplet's first two lines hold three numbers each"),
+                    .with_label("not a number or out of range")
+                    .with_help(format!(
+                        "a triplet's first two lines hold three numbers each, at most {:e} in size",
+                        crate::num::range::MAX_MAGNITUDE
+                    )),
                     start,
                     start + field.len(),
                 ));
