@@ -81,16 +81,25 @@ impl Problem {
 
     /// For every endpoint, the `k` nearest endpoints of other groups, nearest first
     /// (ties by index).
-    fn neighbours(&self, tree: &mut Tree, k: usize) -> Vec<Vec<usize>> {
-        (0..2 * self.starts.len())
-            .map(|e| tree.nearest_k(self.point(e), k, |c| c / 2 == e / 2))
-            .collect()
+    fn neighbours(&self, tree: &mut Tree, k: usize) -> Near {
+        let m = 2 * self.starts.len();
+        let mut near = Near {
+            k,
+            ends: vec![0; m * k],
+            len: vec![0; m],
+        };
+        for e in 0..m {
+            let list = tree.nearest_k(self.point(e), k, |c| c / 2 == e / 2);
+            near.ends[e * k..e * k + list.len()].copy_from_slice(&list);
+            near.len[e] = list.len();
+        }
+        near
     }
 
     /// Greedy: from the origin, always the nearest group not yet cut (either end when it
     /// may be entered there; ties by end index). Exact: the neighbour list, else the
     /// tree of the ends not yet cut.
-    fn nearest_neighbour(&self, near: &[Vec<usize>], tree: &mut Tree) -> Order {
+    fn nearest_neighbour(&self, near: &Near, tree: &mut Tree) -> Order {
         let n = self.starts.len();
         let mut done = vec![false; n];
         let mut order = Vec::with_capacity(n);
@@ -122,17 +131,34 @@ impl Problem {
 /// boards and plots of the corpus use at most 36 (random boards of 10 000 groups 37):
 /// they are improved to the end; a huge board stops improving after about `n log n`
 /// work, however long the runs of groups its moves shift.
-const WORK_PER_GROUP: u64 = 256;
+const WORK_PER_GROUP: u64 = 64;
+
+/// Each end's nearest ends of other groups, nearest first: `k` places per end in one
+/// array (a board of 200 000 groups has 4.8 million), `len[e]` of them filled.
+struct Near {
+    k: usize,
+    ends: Vec<usize>,
+    len: Vec<usize>,
+}
+
+impl std::ops::Index<usize> for Near {
+    type Output = [usize];
+    fn index(&self, e: usize) -> &[usize] {
+        &self.ends[e * self.k..e * self.k + self.len[e]]
+    }
+}
 
 /// 2-opt and Or-opt over neighbour lists, first improvement, bounded sweeps.
 struct Improver<'a> {
     p: &'a Problem,
-    near: &'a [Vec<usize>],
+    near: &'a Near,
     order: &'a mut Order,
     /// Position of each group in `order`.
     pos: Vec<usize>,
     /// `fixed[i]`: number of groups that cannot be flipped in `order[..i]`.
     fixed: Vec<usize>,
+    /// The groups a move of one group is weighed with (kept between groups).
+    cands: Vec<usize>,
     /// Moves weighed and groups moved so far.
     work: u64,
     /// The most work the improvement may do: moves on a large board can shift long
@@ -141,7 +167,7 @@ struct Improver<'a> {
 }
 
 impl<'a> Improver<'a> {
-    fn new(p: &'a Problem, near: &'a [Vec<usize>], order: &'a mut Order) -> Self {
+    fn new(p: &'a Problem, near: &'a Near, order: &'a mut Order) -> Self {
         let n = order.len() as u64;
         let mut s = Improver {
             p,
@@ -149,6 +175,7 @@ impl<'a> Improver<'a> {
             order,
             pos: vec![0; n as usize],
             fixed: vec![0; n as usize + 1],
+            cands: Vec::new(),
             work: 0,
             budget: WORK_PER_GROUP * n * (64 - n.leading_zeros()) as u64,
         };
@@ -204,15 +231,17 @@ impl<'a> Improver<'a> {
             if self.spent() {
                 break;
             }
-            let cands: Vec<usize> = if i == 0 {
-                (0..n).collect()
+            let mut cands = std::mem::take(&mut self.cands);
+            cands.clear();
+            if i == 0 {
+                cands.extend(0..n);
             } else {
                 let (g, r) = self.order[i - 1];
                 let exit_e = 2 * g + usize::from(!r);
-                self.near[exit_e].iter().map(|&e| e / 2).collect()
-            };
+                cands.extend(self.near[exit_e].iter().map(|&e| e / 2));
+            }
             self.work += cands.len() as u64;
-            for h in cands {
+            for &h in &cands {
                 let j = self.pos[h];
                 if j < i || self.fixed[j + 1] != self.fixed[i] {
                     continue;
@@ -236,6 +265,7 @@ impl<'a> Improver<'a> {
                     improved = true;
                 }
             }
+            self.cands = cands;
         }
         improved
     }
@@ -259,15 +289,18 @@ impl<'a> Improver<'a> {
                 &[cur.1]
             };
             let mut best: Option<(f64, usize, bool)> = None;
-            let mut cands: Vec<usize> = self.near[2 * g]
-                .iter()
-                .chain(&self.near[2 * g + 1])
-                .map(|&e| e / 2)
-                .collect();
+            let mut cands = std::mem::take(&mut self.cands);
+            cands.clear();
+            cands.extend(
+                self.near[2 * g]
+                    .iter()
+                    .chain(&self.near[2 * g + 1])
+                    .map(|&e| e / 2),
+            );
             cands.sort_unstable();
             cands.dedup();
             self.work += cands.len() as u64;
-            for h in cands {
+            for &h in &cands {
                 let m = self.pos[h];
                 // Insert after h (between h and what follows it once g is out), or before.
                 for after in [true, false] {
@@ -291,6 +324,7 @@ impl<'a> Improver<'a> {
                     }
                 }
             }
+            self.cands = cands;
             if let Some((_, at, r)) = best {
                 // The groups between the old and the new place shift by one.
                 if at >= k {
@@ -374,8 +408,9 @@ mod tests {
             let (a, b) = (work(small), work(large));
             let per = |w: f64, n: usize| w / (n as f64 * (n as f64).log2());
             assert!(b / a < 24.0, "column {column}, 2-opt {two_opt}: {a} -> {b}");
+            // The budget (64 per group and doubling) with one sweep's overshoot.
             assert!(
-                per(b, large) < 64.0,
+                per(b, large) < 80.0,
                 "column {column}, 2-opt {two_opt}: {b}"
             );
         }
