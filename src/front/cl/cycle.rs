@@ -300,7 +300,10 @@ fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
                 return Err(unsupported(
                     stmt,
                     args,
-                    format!("the CYCLE word `{word}` is not understood"),
+                    format!(
+                        "the CYCLE word `{}` is not understood",
+                        crate::num::range::shown(&word)
+                    ),
                 ));
             }
         }

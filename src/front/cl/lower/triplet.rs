@@ -103,7 +103,10 @@ impl Lowerer {
             Err(stmt.locate_all(
                 Diagnostic::error(
                     "cl::triplet",
-                    format!("expected a motion code such as `7f` or `80`, found `{code}`"),
+                    format!(
+                        "expected a motion code such as `7f` or `80`, found `{}`",
+                        crate::num::range::shown(code)
+                    ),
                 )
                 .with_label("not a motion code")
                 .with_help("the third line of a triplet is the hexadecimal motion code (7f rapid)"),
