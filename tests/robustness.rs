@@ -27,6 +27,16 @@ fn text(b: &[u8]) -> String {
     String::from_utf8_lossy(b).into_owned()
 }
 
+/// The run failed with exit 1 and its messages say every one of `needles`; returns them.
+fn fails_with(out: &Output, needles: &[&str]) -> String {
+    let stderr = text(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    for n in needles {
+        assert!(stderr.contains(n), "no `{n}` in: {stderr}");
+    }
+    stderr
+}
+
 /// The value of word `letter` in a printed line (`G1 X25.4 Y50.8` → X: 25.4).
 fn word(line: &str, letter: char) -> Option<f64> {
     line.split_whitespace()
@@ -102,11 +112,7 @@ fn hpgl_unterminated_label() {
         b"IN;PU100,100;LBhello\nPD200,200;PU;\n",
         &["--preset", "pcb-mill"],
     );
-    let stderr = text(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("not terminated"), "{stderr}");
-    assert!(stderr.contains("ETX"), "{stderr}");
-    assert!(stderr.contains("l.hpgl:1:14"), "{stderr}");
+    fails_with(&out, &["not terminated", "ETX", "l.hpgl:1:14"]);
 
     let out = run(
         "l.hpgl",
@@ -136,11 +142,8 @@ fn cl_numbers_out_of_range() {
         b"FEDRAT/100\nGOTO/1e308,0,0\nGOTO/1,2,3\n",
         &["--preset", "emoc-x5"],
     );
-    let stderr = text(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    let stderr = fails_with(&out, &["big.cls:2:6", "out of range"]);
     assert_eq!(stderr.matches("error:").count(), 1, "{stderr}");
-    assert!(stderr.contains("big.cls:2:6"), "{stderr}");
-    assert!(stderr.contains("out of range"), "{stderr}");
     // The good move after it is still compiled.
     let moves = xy_of_moves(&text(&out.stdout));
     assert_eq!(moves, [(1.0, 2.0)]);
@@ -181,11 +184,10 @@ fn linearize_arcs_past_its_cap() {
         b"G21 G90\nG0 X10 Y0\nG2 X10 Y0 I-10 J0 P1000000 F1000\nG1 X0\n",
         &["--emit", "gcode", "--pass", "linearize-arcs"],
     );
-    let stderr = text(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("linearize-arcs::chords"), "{stderr}");
-    assert!(stderr.contains("turns.ngc:3"), "{stderr}");
-    assert!(stderr.contains("max_chords"), "{stderr}");
+    fails_with(
+        &out,
+        &["linearize-arcs::chords", "turns.ngc:3", "max_chords"],
+    );
 
     let out = run(
         "turns.ngc",
@@ -218,11 +220,10 @@ fn expand_subprograms_counts_first() {
         program,
         &["--emit", "gcode", "--pass", "expand-subprograms"],
     );
-    let stderr = text(&out.stderr);
-    assert_eq!(out.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("subprograms::size"), "{stderr}");
-    assert!(stderr.contains("nest.ngc:3:1"), "{stderr}");
-    assert!(stderr.contains("18000000 blocks"), "{stderr}");
+    let stderr = fails_with(
+        &out,
+        &["subprograms::size", "nest.ngc:3:1", "18000000 blocks"],
+    );
     assert!(!stderr.contains("never called"), "{stderr}");
     // 18 million blocks were never made.
     assert!(started.elapsed().as_secs() < 20);
