@@ -6,7 +6,10 @@
 //! breaks and blanks between commands and between parameters are allowed, so real
 //! files with and without terminators, one command per line or everything on one
 //! line, all read the same. `LB` (label) text runs to the label terminator (ETX,
-//! byte 3, or the one `DT` sets) and may hold any byte, `;` included.
+//! byte 3, or the one `DT` sets) and may hold any byte, `;` included; a label the input
+//! ends inside is an error (`hpgl::open-label`), not a plot that silently stops there.
+//! A UTF-8 byte-order mark at the start is skipped; one anywhere else is an error that
+//! says BOM. Parameters beyond [`crate::num::range::MAX_MAGNITUDE`] are errors.
 //!
 //! Memory is bounded: a command longer than the limit is an error and its bytes are
 //! skipped, not buffered.
