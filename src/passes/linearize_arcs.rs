@@ -12,6 +12,12 @@
 //!   the source's end point is off the circle (a spiral, below) the bound also counts
 //!   the chord error of the radius change ([`crate::motion::arc::ArcPath::sagitta`]),
 //!   so the path stays within `tolerance` of its chords there too.
+//! - `max_chords` (default `100000`, at most 10,000,000): the most chords one arc may
+//!   become. An arc that needs more to stay within `tolerance` (a huge radius at a tiny
+//!   tolerance, or thousands of `P` turns) is an error at its line, `linearize-arcs::chords`,
+//!   and is passed on unchanged: the tolerance is never broken silently, and the chords
+//!   of one arc, which the pass holds until the arc is done, stay within a bounded
+//!   memory.
 //!
 //! # Geometry
 //! The arc is the one [`crate::motion::arc`] defines and the frontend resolved: G17, G18
@@ -32,15 +38,15 @@
 //! # Limits
 //! An arc whose start is not known (not produced by the G-code frontend, which passes
 //! such lines through as text) and arcs on tool poses are passed on unchanged with a
-//! warning. An arc of huge radius at a tiny tolerance keeps at most
-//! [`crate::motion::arc::MAX_CHORDS`] chords.
+//! warning. An arc that needs more than `max_chords` chords is an error (see the
+//! option).
 
 use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{Block, BlockKind, FeedMode, MotionKind, Target, Tracker};
-use crate::motion::arc::ArcPath;
+use crate::motion::arc::{ArcPath, MAX_CHORDS};
 
 /// Options of `linearize-arcs`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -48,11 +54,16 @@ use crate::motion::arc::ArcPath;
 pub struct Options {
     /// Largest distance of the arc from its chords, mm.
     pub tolerance: f64,
+    /// Most chords one arc may become.
+    pub max_chords: usize,
 }
 
 impl Default for Options {
     fn default() -> Self {
-        Options { tolerance: 0.002 }
+        Options {
+            tolerance: 0.002,
+            max_chords: 100_000,
+        }
     }
 }
 
@@ -76,6 +87,11 @@ impl LinearizeArcs {
     pub fn new(options: Options) -> Result<LinearizeArcs, Diagnostic> {
         if !(options.tolerance.is_finite() && options.tolerance > 0.0) {
             return Err(Diagnostic::settings("tolerance must be a number > 0"));
+        }
+        if !(1..=MAX_CHORDS).contains(&options.max_chords) {
+            return Err(Diagnostic::settings(format!(
+                "max_chords must be from 1 to {MAX_CHORDS}"
+            )));
         }
         Ok(LinearizeArcs {
             options,
@@ -115,6 +131,14 @@ impl LinearizeArcs {
             return;
         };
         let n = path.chord_count(self.options.tolerance);
+        // At the count's own cap the tolerance may not hold: then more were needed.
+        let capped = n >= MAX_CHORDS && path.sagitta(n) > self.options.tolerance;
+        if n > self.options.max_chords || capped {
+            out.diag(self.too_many_chords(&block, n, capped));
+            self.track.update(&block);
+            out.push(block);
+            return;
+        }
         let mut feed = m.feed;
         if feed.mode == FeedMode::InverseTime {
             feed.rate = feed.rate.map(|f| f * n as f64);
@@ -144,6 +168,29 @@ impl LinearizeArcs {
             out.push(b);
         }
         self.track.set_pos(path.to);
+    }
+}
+
+impl LinearizeArcs {
+    /// The error for an arc that needs `n` chords (more when `capped`), over `max_chords`.
+    fn too_many_chords(&self, block: &Block, n: usize, capped: bool) -> Diagnostic {
+        let needed = if capped {
+            format!("more than {n}")
+        } else {
+            n.to_string()
+        };
+        Diagnostic::error(
+            "linearize-arcs::chords",
+            format!(
+                "this arc needs {needed} chords to stay within the tolerance {} mm; linearize-arcs makes at most {} of one arc",
+                self.options.tolerance, self.options.max_chords
+            ),
+        )
+        .at_span(block.span)
+        .with_help(format!(
+            "program fewer turns (P) or a smaller arc; or raise the tolerance, or the cap \
+             (`--pass linearize-arcs:max_chords=N`, at most {MAX_CHORDS})"
+        ))
     }
 }
 

@@ -520,7 +520,7 @@ fn unknown(stmt: &Statement, major: &str, start: usize, end: usize) -> Diagnosti
     let shown = if major.is_empty() {
         stmt.code.trim().chars().take(20).collect::<String>()
     } else {
-        major.to_string()
+        crate::num::range::shown(major).into_owned()
     };
     stmt.locate(
         Diagnostic::warning(

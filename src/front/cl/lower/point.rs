@@ -450,7 +450,10 @@ fn circle_words(a: &Args<'_>, major: &str) -> Result<Written, Diagnostic> {
                     return Err(a.stmt.locate(
                         Diagnostic::error(
                             "cl::bad-number",
-                            format!("expected a number, found `{}`", a.text(x)),
+                            format!(
+                                "expected a number, found `{}`",
+                                crate::num::range::shown(a.text(x))
+                            ),
                         )
                         .with_label("not a number")
                         .with_help(format!(
