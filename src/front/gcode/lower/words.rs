@@ -7,6 +7,7 @@ use crate::front::gcode::ast::{Item, Line};
 use crate::front::gcode::lexer::Tok;
 use crate::ir::{Axis, Comment, CommentStyle};
 use crate::num::parse_decimal;
+use crate::num::range::{in_range, shown};
 
 /// A G or M code as (major, minor): `G38.2` is (38, 2), `G1` is (1, 0).
 pub(super) type Code = (u32, u32);
@@ -199,10 +200,10 @@ fn read_word<'a>(
     let w = &text[s..e];
     let (letter, number) = split_word(w);
     let value = parse_decimal(number).unwrap_or(f64::NAN);
-    if !value.is_finite() || value.abs() > 1e12 {
+    if !in_range(value) {
         return Err(err(
             "gcode::number-range",
-            format!("`{w}`: the number is out of range"),
+            format!("`{}`: the number is out of range", shown(w)),
             s,
             s + w.len(),
         )
