@@ -211,3 +211,67 @@ fn slicer_machine_settings_become_comments_with_one_warning() {
     assert!(warned[0].message.contains("M203 X180 Y180 Z12 E80"));
     assert!(!diags.iter().any(|d| d.is_error()), "{diags:?}");
 }
+
+/// The distance of the printed chords from their arc: the G1 vertices of the printed
+/// program, read from the text, with every chord sampled against the exact circle.
+fn printed_chord_error(text: &str, centre: [f64; 2], r: f64) -> f64 {
+    let mut worst = 0.0f64;
+    let mut prev: Option<[f64; 2]> = None;
+    let mut pos = [0.0f64; 2];
+    for line in text.lines() {
+        let (x, y) = (word(line, 'X'), word(line, 'Y'));
+        if x.is_none() && y.is_none() {
+            continue;
+        }
+        pos = [x.unwrap_or(pos[0]), y.unwrap_or(pos[1])];
+        if line.starts_with("G1") {
+            let a = prev.expect("a start before the first chord");
+            for k in 0..=64 {
+                let t = f64::from(k) / 64.0;
+                let p = [a[0] + t * (pos[0] - a[0]), a[1] + t * (pos[1] - a[1])];
+                let d = (p[0] - centre[0]).hypot(p[1] - centre[1]);
+                worst = worst.max((d - r).abs());
+            }
+        }
+        prev = Some(pos);
+    }
+    worst
+}
+
+/// `linearize-arcs` holds its tolerance on the printed (rounded) vertices, not only on
+/// the computed ones (issue 20, defect 10).
+#[test]
+fn linearized_arcs_hold_the_tolerance_as_printed() {
+    let mut preset = Preset::builtin("default").expect("preset");
+    preset.passes.insert(
+        0,
+        ncpost::preset::PassSpec {
+            name: "linearize-arcs".into(),
+            options: toml::Table::new(),
+        },
+    );
+    for (r, start_angle, sweep) in [
+        (0.5f64, 0.3f64, 5.9f64),
+        (3.7, 1.1, 2.4),
+        (25.4, -0.7, 4.4),
+        (120.0, 2.0, 1.3),
+        (7.77, 0.0, 6.2),
+    ] {
+        let centre = [10.123456, -4.567891];
+        let at = |a: f64| [centre[0] + r * a.cos(), centre[1] + r * a.sin()];
+        let (s, e) = (at(start_angle), at(start_angle + sweep));
+        let src = format!(
+            "G0 X{:.6} Y{:.6}\nG3 X{:.6} Y{:.6} I{:.6} J{:.6} F300\n",
+            s[0],
+            s[1],
+            e[0],
+            e[1],
+            centre[0] - s[0],
+            centre[1] - s[1]
+        );
+        let out = compile_str(&src, &preset).expect("compiles");
+        assert!(!out.contains("G3"), "{out}");
+        let worst = printed_chord_error(&out, centre, r);
+        assert!(worst <= 0.002 + 1e-6, "r {r}: {worst} mm\n{out}");
+    }
+}

@@ -11,7 +11,11 @@
 //!   radii), each chord over at most half a turn; it is computed and then checked. When
 //!   the source's end point is off the circle (a spiral, below) the bound also counts
 //!   the chord error of the radius change ([`crate::motion::arc::ArcPath::sagitta`]),
-//!   so the path stays within `tolerance` of its chords there too.
+//!   so the path stays within `tolerance` of its chords there too. The tolerance holds
+//!   on the printed vertices: the backend rounds each linear coordinate by up to half a
+//!   unit of its last decimal (0.0005 mm at 3 decimals), so the chords get what that
+//!   rounding leaves (`tolerance - 0.5·10^-d·√2`, `√3` for a helix); a tolerance the
+//!   printed decimals cannot hold is a settings error.
 //! - `max_chords` (default `100000`, at most 10,000,000): the most chords one arc may
 //!   become. An arc that needs more to stay within `tolerance` (a huge radius at a tiny
 //!   tolerance, or thousands of `P` turns) is an error at its line, `linearize-arcs::chords`,
@@ -71,13 +75,19 @@ impl Default for Options {
 pub const INFO: PassInfo = PassInfo {
     name: "linearize-arcs",
     summary: "cut G2/G3 arcs (all planes, R and IJK, helical, full circles) into G1 chords within a tolerance",
-    build: |t, _ctx| Ok(Box::new(LinearizeArcs::new(super::options(t)?)?)),
+    build: |t, ctx| {
+        let pass = LinearizeArcs::new(super::options(t)?)?;
+        Ok(Box::new(pass.printed_with(ctx.decimals.map(|d| d.linear))?))
+    },
     defaults: || super::to_toml(&Options::default()),
 };
 
 /// The `linearize-arcs` pass.
 pub struct LinearizeArcs {
     options: Options,
+    /// How far a printed vertex may lie from the computed one in each linear axis, mm
+    /// (half a unit of the last printed decimal; 0 when nothing is printed).
+    rounding: f64,
     /// The position after the last block (IR frame).
     track: Tracker,
 }
@@ -95,8 +105,36 @@ impl LinearizeArcs {
         }
         Ok(LinearizeArcs {
             options,
+            rounding: 0.0,
             track: Tracker::default(),
         })
+    }
+
+    /// The same pass for a backend that prints linear axes with `decimals`: the chords
+    /// are cut so that the tolerance holds on the printed vertices, which the rounding
+    /// moves by up to half a unit of the last decimal in each axis. An error when the
+    /// tolerance is finer than the printed numbers can hold.
+    pub fn printed_with(mut self, decimals: Option<u8>) -> Result<LinearizeArcs, Diagnostic> {
+        let Some(d) = decimals else {
+            return Ok(self);
+        };
+        self.rounding = 0.5 * 10f64.powi(-i32::from(d));
+        // A planar arc's vertex moves in two axes; a helix's in three.
+        if self.budget(true) <= 0.0 {
+            return Err(Diagnostic::settings(format!(
+                "linearize-arcs tolerance {} mm is finer than the printed coordinates ({d} \
+                 decimals) can hold: raise the tolerance or print more decimals",
+                self.options.tolerance
+            )));
+        }
+        Ok(self)
+    }
+
+    /// The chords' own share of the tolerance: what the print rounding of their
+    /// vertices leaves of it.
+    fn budget(&self, helical: bool) -> f64 {
+        let axes: f64 = if helical { 3.0 } else { 2.0 };
+        self.options.tolerance - self.rounding * axes.sqrt()
     }
 }
 
@@ -130,9 +168,11 @@ impl LinearizeArcs {
             out.push(block);
             return;
         };
-        let n = path.chord_count(self.options.tolerance);
+        let helical = path.from.get(path.n) != path.to.get(path.n);
+        let budget = self.budget(helical);
+        let n = path.chord_count(budget);
         // At the count's own cap the tolerance may not hold: then more were needed.
-        let capped = n >= MAX_CHORDS && path.sagitta(n) > self.options.tolerance;
+        let capped = n >= MAX_CHORDS && path.sagitta(n) > budget;
         if n > self.options.max_chords || capped {
             out.diag(self.too_many_chords(&block, n, capped));
             self.track.update(&block);
