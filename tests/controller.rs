@@ -275,3 +275,75 @@ fn linearized_arcs_hold_the_tolerance_as_printed() {
         assert!(worst <= 0.002 + 1e-6, "r {r}: {worst} mm\n{out}");
     }
 }
+
+/// The height of a 3×3 test map over [0, 20]² (nodes every 10 mm), bilinear in each
+/// cell, written independently of ncpost's reader.
+fn test_surface(x: f64, y: f64) -> f64 {
+    let z = [[0.0, 0.31, -0.12], [0.27, -0.4, 0.05], [-0.2, 0.18, 0.44]];
+    let (i, j) = (((x / 10.0) as usize).min(1), ((y / 10.0) as usize).min(1));
+    let (u, v) = (x / 10.0 - i as f64, y / 10.0 - j as f64);
+    z[j][i] * (1.0 - u) * (1.0 - v)
+        + z[j][i + 1] * u * (1.0 - v)
+        + z[j + 1][i] * (1.0 - u) * v
+        + z[j + 1][i + 1] * u * v
+}
+
+/// `heightmap` holds its tolerance on the printed vertices (issue 20, defect 10): every
+/// printed piece of a compensated cut, read from the text, stays within 0.001 mm
+/// vertically of the programmed Z plus the surface.
+#[test]
+fn heightmap_holds_the_tolerance_as_printed() {
+    let dir = tempfile::tempdir().expect("temporary directory");
+    let map = dir.path().join("map.csv");
+    let mut csv = String::new();
+    for j in 0..3 {
+        for i in 0..3 {
+            let (x, y) = (10.0 * f64::from(i), 10.0 * f64::from(j));
+            csv.push_str(&format!("{x},{y},{}\n", test_surface(x, y)));
+        }
+    }
+    std::fs::write(&map, csv).expect("write the map");
+    let mut preset = Preset::builtin("default").expect("preset");
+    let mut options = toml::Table::new();
+    options.insert("map".into(), map.to_string_lossy().into_owned().into());
+    preset.passes.insert(
+        0,
+        ncpost::preset::PassSpec {
+            name: "heightmap".into(),
+            options,
+        },
+    );
+    let (a, b, z0, z1) = ([0.5, 0.7], [19.3, 18.1], 0.0, -0.5);
+    let src = format!(
+        "G0 X{} Y{} Z{z0}\nG1 X{} Y{} Z{z1} F300\n",
+        a[0], a[1], b[0], b[1]
+    );
+    let out = compile_str(&src, &preset).expect("compiles");
+    let mut prev: Option<[f64; 3]> = None;
+    let mut worst = 0.0f64;
+    let mut pieces = 0;
+    let mut pos = [0.0f64; 3];
+    for line in out.lines() {
+        let w = [word(line, 'X'), word(line, 'Y'), word(line, 'Z')];
+        if w.iter().all(Option::is_none) {
+            continue;
+        }
+        for k in 0..3 {
+            pos[k] = w[k].unwrap_or(pos[k]);
+        }
+        if let (true, Some(p)) = (line.starts_with("G1"), prev) {
+            pieces += 1;
+            for k in 0..=32 {
+                let t = f64::from(k) / 32.0;
+                let q: Vec<f64> = (0..3).map(|i| p[i] + t * (pos[i] - p[i])).collect();
+                let d = [b[0] - a[0], b[1] - a[1]];
+                let s = ((q[0] - a[0]) * d[0] + (q[1] - a[1]) * d[1]) / (d[0] * d[0] + d[1] * d[1]);
+                let want = z0 + s * (z1 - z0) + test_surface(q[0], q[1]);
+                worst = worst.max((q[2] - want).abs());
+            }
+        }
+        prev = Some(pos);
+    }
+    assert!(pieces > 4, "{out}");
+    assert!(worst <= 0.001 + 1e-9, "{worst} mm\n{out}");
+}

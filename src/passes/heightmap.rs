@@ -12,7 +12,10 @@
 //!   forming a full grid).
 //! - `format` (`"auto"`): `"rrf"`, `"bcnc"`, `"grbl-log"` or `"csv"` to skip detection.
 //! - `tolerance` (mm, default `0.001`): the largest vertical distance between an emitted
-//!   straight segment and the compensated path (programmed Z + surface).
+//!   straight segment and the compensated path (programmed Z + surface), as printed: the
+//!   print rounding of the vertices (half a unit of the last decimal in Z, and in X and Y
+//!   times the map's steepest slope) is taken from it first, and a tolerance the printed
+//!   decimals cannot hold is a settings error.
 //! - `outside` (`"error"`): a move whose end point is outside the grid is the error
 //!   `heightmap::outside` (the line, the point, the grid's extent). `"clamp"` extends
 //!   the map beyond its edges with the nearest edge value (`h(clamp(x), clamp(y))`).
@@ -131,9 +134,10 @@ impl Default for Options {
 pub const INFO: PassInfo = PassInfo {
     name: "heightmap",
     summary: "add a probed height map (RRF heightmap.csv, bCNC .probe, Grbl PRB log, x,y,z CSV) to Z; moves split at grid lines and within a tolerance",
-    build: |t, _ctx| {
+    build: |t, ctx| {
         let options: Options = super::options(t)?;
-        Ok(Box::new(Heightmap::from_file(options)?))
+        let pass = Heightmap::from_file(options)?;
+        Ok(Box::new(pass.printed_with(ctx.decimals.map(|d| d.linear))?))
     },
     defaults: || super::to_toml(&Options::default()),
 };
@@ -151,6 +155,10 @@ pub struct Heightmap {
     counts: BTreeMap<&'static str, usize>,
     /// Vertices of the move being cut (reused).
     pieces: Vec<(f64, Joints)>,
+    /// How far the printed Z of a vertex may be from its compensated height: the
+    /// rounding of Z, and of X and Y times the map's steepest slope (0 when nothing is
+    /// printed).
+    rounding: f64,
 }
 
 /// Reads a map file in `format`.
@@ -193,7 +201,50 @@ impl Heightmap {
             track: crate::ir::Tracker::default(),
             counts: BTreeMap::new(),
             pieces: Vec::new(),
+            rounding: 0.0,
         })
+    }
+
+    /// The same pass for a backend that prints linear axes with `decimals`: the pieces
+    /// are cut so that the tolerance holds on the printed vertices. Rounding moves Z by
+    /// up to half a unit of the last decimal, and X and Y by as much, which changes the
+    /// height under them by the map's slope. An error when the tolerance is finer than
+    /// the printed numbers can hold.
+    pub fn printed_with(mut self, decimals: Option<u8>) -> Result<Heightmap, Diagnostic> {
+        let Some(d) = decimals else {
+            return Ok(self);
+        };
+        let q = 0.5 * 10f64.powi(-i32::from(d));
+        let [gx, gy] = self.steepest_slopes();
+        self.rounding = q * (1.0 + gx + gy);
+        if self.rounding >= self.options.tolerance {
+            return Err(Diagnostic::settings(format!(
+                "heightmap tolerance {} mm is finer than the printed coordinates ({d} \
+                 decimals) can hold on this map ({:.4} mm): raise the tolerance or print \
+                 more decimals",
+                self.options.tolerance, self.rounding
+            )));
+        }
+        Ok(self)
+    }
+
+    /// The map's steepest slopes along X and along Y between probed neighbours (a
+    /// bilinear cell is no steeper than its edges).
+    fn steepest_slopes(&self) -> [f64; 2] {
+        let m = &self.map;
+        let mut g = [0.0f64; 2];
+        for j in 0..m.ys.len() {
+            for i in 0..m.xs.len() {
+                let Some(h) = m.node(i, j) else { continue };
+                if let Some(hx) = (i + 1 < m.xs.len()).then(|| m.node(i + 1, j)).flatten() {
+                    g[0] = g[0].max((hx - h).abs() / (m.xs[i + 1] - m.xs[i]));
+                }
+                if let Some(hy) = (j + 1 < m.ys.len()).then(|| m.node(i, j + 1)).flatten() {
+                    g[1] = g[1].max((hy - h).abs() / (m.ys[j + 1] - m.ys[j]));
+                }
+            }
+        }
+        g
     }
 
     /// The map in use.
@@ -279,7 +330,8 @@ impl Heightmap {
         }
         ts.push(1.0);
         ts.sort_by(f64::total_cmp);
-        let tol = self.options.tolerance;
+        // The pieces' own share of the tolerance: what the print rounding leaves.
+        let tol = self.options.tolerance - self.rounding;
         let vertex = |t: f64,
                       map: &HeightMap,
                       pieces: &mut Vec<(f64, Joints)>|
