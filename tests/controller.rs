@@ -347,3 +347,40 @@ fn heightmap_holds_the_tolerance_as_printed() {
     assert!(pieces > 4, "{out}");
     assert!(worst <= 0.001 + 1e-9, "{worst} mm\n{out}");
 }
+
+/// A polar arc keeps the whole tolerance (issue 20, defect 3): the printed r/θ program,
+/// interpolated joint-linearly as the controller does, stays within 0.01 mm of the
+/// programmed arc (plus the printed numbers' rounding, 0.00005 mm and 0.00005° at most).
+#[test]
+fn polar_arcs_stay_within_the_tolerance_of_the_arc() {
+    let src = "G21\nG90\nM83\nG0 X55 Y0 F3000\nG3 X25 Y0 I-15 J0 E2 F1200\n";
+    let out = compile_str(src, &preset(Mode::Fdm)).expect("compiles");
+    let (centre, radius) = ([40.0, 0.0], 15.0);
+    let mut worst = 0.0f64;
+    let mut prev: Option<[f64; 2]> = None;
+    let mut joints = [0.0f64; 2];
+    let mut cutting = false;
+    for line in out.lines() {
+        let (r, t) = (word(line, 'X'), word(line, 'Y'));
+        if line.starts_with("G1") {
+            cutting = true;
+        }
+        if r.is_none() && t.is_none() {
+            continue;
+        }
+        joints = [r.unwrap_or(joints[0]), t.unwrap_or(joints[1])];
+        if let (true, Some(p)) = (line.starts_with("G1"), prev) {
+            for k in 0..=64 {
+                let s = f64::from(k) / 64.0;
+                let r = p[0] + s * (joints[0] - p[0]);
+                let theta = (p[1] + s * (joints[1] - p[1])).to_radians();
+                let xy = [r * theta.cos(), r * theta.sin()];
+                let d = (xy[0] - centre[0]).hypot(xy[1] - centre[1]);
+                worst = worst.max((d - radius).abs());
+            }
+        }
+        prev = Some(joints);
+    }
+    assert!(cutting, "{out}");
+    assert!(worst <= 0.01 + 2e-4, "{worst} mm\n{out}");
+}

@@ -69,8 +69,8 @@
 //! Z, E and every other axis are interpolated along each split move in proportion to its
 //! XY parameter (equal to the length fraction), the last piece ending at the exact target,
 //! so the total E is unchanged. Arcs (G2/G3, any plane, helical, extra turns) are first
-//! cut into chords within `tolerance` of the arc; the polar path is then within
-//! `tolerance` of the chords. `center` is the input XY point that sits on the table's
+//! cut into chords within half the `tolerance` of the arc, and the polar path is then
+//! held within the other half of the chords: within `tolerance` of the arc in all. `center` is the input XY point that sits on the table's
 //! axis. G92 offsets on X or Y are dropped with a warning (the table centre is the
 //! origin); commands that make X or Y unknown make r and θ unknown.
 //!

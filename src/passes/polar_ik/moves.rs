@@ -21,7 +21,14 @@ struct Line {
     cart_len: f64,
     /// The programmed XYZ speed, mm/s (`None`: a rapid or no feed).
     speed: Option<f64>,
+    /// How far the polar path may stray from this line, mm.
+    tolerance: f64,
 }
+
+/// The share of the tolerance each of the two cuts of an arc gets: the chords stray from
+/// the arc and the polar path from the chords, so each gets half, and the polar path
+/// stays within the whole tolerance of the arc.
+const ARC_SHARE: f64 = 0.5;
 
 impl PolarIk {
     /// `kinematics = "controller"`: arcs become chords, everything else passes.
@@ -100,7 +107,7 @@ impl PolarIk {
         let chords;
         let points: &[Joints] = match m.kind {
             MotionKind::Arc(arc) => {
-                chords = arc_points(&from, &to, &arc, self.options.tolerance);
+                chords = arc_points(&from, &to, &arc, ARC_SHARE * self.options.tolerance);
                 &chords
             }
             _ => std::slice::from_ref(&to),
@@ -235,6 +242,10 @@ impl PolarIk {
             xy_len,
             cart_len: xy_len.hypot(dz),
             speed,
+            tolerance: match m.kind {
+                MotionKind::Arc(_) => ARC_SHARE * self.options.tolerance,
+                _ => self.options.tolerance,
+            },
         };
         let pieces = self.pieces_of(&line, node, rapid, block, out);
         let xy = AxisSet::from_iter([Axis::X, Axis::Y]);
@@ -306,7 +317,7 @@ impl PolarIk {
         let (tolerance, max_depth, cap_radius) = if rapid && !self.options.rapids {
             (f64::INFINITY, 0, None)
         } else {
-            (self.options.tolerance, self.options.max_depth, cap_radius)
+            (line.tolerance, self.options.max_depth, cap_radius)
         };
         let mut pieces = Vec::new();
         let deep = plan(
