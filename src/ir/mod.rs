@@ -24,7 +24,7 @@ mod modal;
 mod printed;
 mod track;
 
-pub use modal::{Modal, MotionMode};
+pub use modal::{Dialect, Modal, MotionMode};
 pub use track::{Step, Tracker};
 
 use nalgebra::{Point3, Unit, Vector3};

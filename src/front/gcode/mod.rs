@@ -41,6 +41,8 @@ pub struct Options {
     pub strict_arcs: bool,
     /// Longest line accepted, bytes; a longer line is an error and is skipped.
     pub max_line_len: usize,
+    /// The dialect (`auto`: from the header comments).
+    pub dialect: crate::ir::Dialect,
 }
 
 impl Default for Options {
@@ -50,6 +52,7 @@ impl Default for Options {
             arc_tolerance: 0.01,
             strict_arcs: true,
             max_line_len: 1 << 20,
+            dialect: crate::ir::Dialect::Auto,
         }
     }
 }

@@ -24,6 +24,8 @@ pub struct Input {
     pub strict_arcs: bool,
     /// Longest line accepted, bytes; a longer line is an error and is skipped.
     pub max_line_len: usize,
+    /// The dialect (`auto`: from the header comments).
+    pub dialect: crate::ir::Dialect,
 }
 
 impl Default for Input {
@@ -33,6 +35,7 @@ impl Default for Input {
             arc_tolerance: 0.01,
             strict_arcs: true,
             max_line_len: 1 << 20,
+            dialect: crate::ir::Dialect::Auto,
         }
     }
 }

@@ -12,7 +12,7 @@ use super::ast::Item;
 use super::lexer::Spanned;
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, FeedMode, Joints, Plane, Span, Verbatim,
+    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Dialect, FeedMode, Joints, Plane, Span, Verbatim,
     VerbatimReason, WrittenModes,
 };
 
@@ -66,6 +66,9 @@ pub(crate) struct Lowerer {
     /// Lowering a subprogram body for `expand-subprograms`: calls (M98, simple o-calls)
     /// are expanded by the caller, so they change no position or feed here.
     calls_inline: bool,
+    /// The dialect in force: the option's, or under `auto` the one the header names
+    /// (until the program starts).
+    dialect: Dialect,
 }
 
 /// The lowering state a subprogram body starts from and leaves behind: the IR's
@@ -74,7 +77,8 @@ pub(crate) use crate::ir::Modal as LowerState;
 
 impl Lowerer {
     pub(crate) fn new(options: Options) -> Self {
-        Lowerer {
+        let dialect = options.dialect;
+        let mut l = Lowerer {
             options,
             motion: MotionMode::None,
             plane: Plane::XY,
@@ -100,6 +104,18 @@ impl Lowerer {
             saw_text: false,
             program_started: false,
             calls_inline: false,
+            dialect: Dialect::Auto,
+        };
+        l.set_dialect(dialect);
+        l
+    }
+
+    /// Reads the program in `dialect`: a Fanuc control starts in G00, so axis words
+    /// before the first motion code are a rapid.
+    fn set_dialect(&mut self, dialect: Dialect) {
+        self.dialect = dialect;
+        if dialect == Dialect::Fanuc && self.motion == MotionMode::None {
+            self.motion = MotionMode::Rapid;
         }
     }
 
@@ -241,6 +257,13 @@ impl Lowerer {
             return;
         }
         self.saw_text = true;
+        // The slicer's or post processor's header names the dialect.
+        if self.dialect == Dialect::Auto
+            && !self.program_started
+            && let Some(d) = Dialect::named_in(text)
+        {
+            self.set_dialect(d);
+        }
         // Control characters never belong in G-code: most likely a binary file.
         if let Some(at) = text
             .bytes()
