@@ -132,7 +132,8 @@ impl Builder {
     }
 
     /// Shows `n` diagnostics of each code in full and sums up the rest in one summary
-    /// per code at the end (0 shows every one); default [`crate::diag::DEFAULT_LIMIT`].
+    /// per code at the end, without storing them (0, the default, shows every one; the
+    /// command line uses [`crate::diag::DEFAULT_LIMIT`]).
     pub fn max_repeats(mut self, n: u64) -> Self {
         self.max_repeats = Some(n);
         self
@@ -214,7 +215,7 @@ impl Builder {
             preset: self.preset,
             stages: Stages {
                 passes,
-                max_repeats: self.max_repeats.unwrap_or(crate::diag::DEFAULT_LIMIT),
+                max_repeats: self.max_repeats.unwrap_or(0),
                 dump_at,
                 dump: self.dump,
             },

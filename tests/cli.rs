@@ -772,7 +772,7 @@ fn quiet_hides_warnings_but_not_errors() {
 }
 
 #[test]
-fn repeated_warnings_are_counted_after_ten() {
+fn repeated_warnings_are_summed_up_after_five() {
     let mut src = String::from("G21 G90\n");
     for i in 0..15 {
         src.push_str(&format!("#{i} = 1\n"));
@@ -781,15 +781,34 @@ fn repeated_warnings_are_counted_after_ten() {
     let out = run_in(dir.path(), &["check", "many.gcode"], None);
     assert_exit(&out, 0);
     let err = stderr(&out);
-    assert_eq!(err.matches("gcode::unevaluated\n").count(), 10, "{err}");
+    // Five in full and the summary, which has the code too.
+    assert_eq!(err.matches("gcode::unevaluated\n").count(), 6, "{err}");
+    let flat = err
+        .split_whitespace()
+        .filter(|w| *w != "|")
+        .collect::<Vec<_>>()
+        .join(" ");
     assert!(
-        err.contains("note: 5 more warnings [gcode::unevaluated] not shown"),
-        "{err}"
+        flat.contains("10 more `gcode::unevaluated` warnings not shown (15 in all, the first 5 above), on lines 7, 8, 9, … (7..16 in all)"),
+        "{flat}"
     );
-    // JSON shows them all.
+    // JSON is capped the same way; --max-repeats 0 shows them all.
     let out = run_in(
         dir.path(),
         &["check", "--message-format", "json", "many.gcode"],
+        None,
+    );
+    assert_eq!(stderr(&out).lines().count(), 6);
+    let out = run_in(
+        dir.path(),
+        &[
+            "check",
+            "--message-format",
+            "json",
+            "--max-repeats",
+            "0",
+            "many.gcode",
+        ],
         None,
     );
     assert_eq!(stderr(&out).lines().count(), 15);

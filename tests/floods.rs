@@ -8,6 +8,16 @@
 
 use std::process::{Command, Output};
 
+/// `ncpost check --preset PRESET --message-format json EXTRA INPUT`: the JSON messages
+/// on standard error, one a line, after asserting the exit code.
+fn check_json(preset: &str, extra: &[&str], input: &str, ext: &str, code: i32) -> String {
+    let mut args = vec!["check", "--preset", preset, "--message-format", "json"];
+    args.extend_from_slice(extra);
+    let out = ncpost(&args, input, ext);
+    assert_eq!(out.status.code(), Some(code));
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
 fn ncpost(args: &[&str], input: &str, ext: &str) -> Output {
     let dir = tempfile::tempdir().expect("temporary directory");
     let path = dir.path().join(format!("in.{ext}"));
@@ -84,19 +94,7 @@ fn twenty_thousand_unreachable_orientations_give_a_few_lines_and_the_true_count(
 
 #[test]
 fn json_messages_are_capped_too_and_the_summary_carries_the_count() {
-    let out = ncpost(
-        &[
-            "check",
-            "--preset",
-            "trunnion-bc",
-            "--message-format",
-            "json",
-        ],
-        &unreachable_cl(2_000),
-        "cl",
-    );
-    assert_eq!(out.status.code(), Some(1));
-    let err = String::from_utf8_lossy(&out.stderr);
+    let err = check_json("trunnion-bc", &[], &unreachable_cl(2_000), "cl", 1);
     let messages: Vec<serde_json::Value> = err
         .lines()
         .map(|l| serde_json::from_str(l).expect("one JSON object a line"))
@@ -116,16 +114,9 @@ fn json_messages_are_capped_too_and_the_summary_carries_the_count() {
 fn max_repeats_sets_how_many_are_shown_and_zero_shows_all() {
     let input = unreachable_cl(30);
     let shown = |extra: &[&str]| {
-        let mut args = vec![
-            "check",
-            "--preset",
-            "trunnion-bc",
-            "--message-format",
-            "json",
-        ];
-        args.extend_from_slice(extra);
-        let out = ncpost(&args, &input, "cl");
-        String::from_utf8_lossy(&out.stderr).lines().count()
+        check_json("trunnion-bc", extra, &input, "cl", 1)
+            .lines()
+            .count()
     };
     assert_eq!(shown(&["--max-repeats", "2"]), 3);
     assert_eq!(shown(&["--max-repeats", "0"]), 30);
@@ -137,19 +128,7 @@ fn max_repeats_sets_how_many_are_shown_and_zero_shows_all() {
 #[test]
 fn one_block_with_thousands_of_warnings_is_summed_up_with_the_exact_count() {
     let input = "G0 X10 Y0\nG2 X10 Y0 I100000 J0 F1000\n";
-    let run = |extra: &[&str]| {
-        let mut args = vec![
-            "check",
-            "--preset",
-            "polar-printer",
-            "--message-format",
-            "json",
-        ];
-        args.extend_from_slice(extra);
-        let out = ncpost(&args, input, "nc");
-        assert_eq!(out.status.code(), Some(0), "warnings only");
-        String::from_utf8_lossy(&out.stderr).into_owned()
-    };
+    let run = |extra: &[&str]| check_json("polar-printer", extra, input, "nc", 0);
     let all = run(&["--max-repeats", "0"]);
     let reach_all = all
         .lines()

@@ -73,10 +73,10 @@ pub struct Output<'a> {
 }
 
 impl<'a> Output<'a> {
-    /// An output writing to `blocks` and `diags`, showing the default number of each
-    /// code's diagnostics in full ([`crate::diag::DEFAULT_LIMIT`]).
+    /// An output writing to `blocks` and `diags`, storing every diagnostic (the pipeline
+    /// uses [`Output::with_limit`]).
     pub fn new(blocks: &'a mut Vec<Block>, diags: &'a mut Vec<Diagnostic>) -> Self {
-        Output::with_limit(blocks, diags, crate::diag::DEFAULT_LIMIT)
+        Output::with_limit(blocks, diags, 0)
     }
     /// An output writing to `blocks` and `diags`, storing `limit` diagnostics of each code
     /// in full and counting the rest (0: storing all).
