@@ -89,8 +89,9 @@ pub struct Diagnostic {
     pub help: Option<String>,
     /// How far off this case is, in the diagnostic's own unit (mm past a limit, degrees
     /// of tilt): among many of one code, the largest is named in their summary. Always
-    /// finite.
-    pub magnitude: Option<f64>,
+    /// finite; single precision is plenty to rank by and keeps diagnostics small (they
+    /// travel in `Result`s).
+    pub magnitude: Option<f32>,
     /// For a summary of repeated diagnostics (and, on their way, for the one that stands
     /// for the hidden ones of a batch): how many it stands for, where and the worst. See
     /// [`Flood`].
@@ -160,8 +161,8 @@ impl Diagnostic {
         }
     }
 
-    /// Sets how far off this case is (ignored unless finite), for naming the worst of
-    /// many.
+    /// Sets how far off this case is (ignored unless finite; beyond single precision it
+    /// is kept as the largest such number), for naming the worst of many.
     ///
     /// ```
     /// use ncpost::diag::Diagnostic;
@@ -170,7 +171,9 @@ impl Diagnostic {
     /// assert_eq!(Diagnostic::warning("a::b", "c").with_magnitude(f64::NAN).magnitude, None);
     /// ```
     pub fn with_magnitude(mut self, magnitude: f64) -> Self {
-        self.magnitude = magnitude.is_finite().then_some(magnitude);
+        self.magnitude = magnitude
+            .is_finite()
+            .then_some(magnitude.clamp(f64::from(f32::MIN), f64::from(f32::MAX)) as f32);
         self
     }
 

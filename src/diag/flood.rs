@@ -38,7 +38,7 @@ pub struct Tally {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Worst {
     /// Its magnitude (in the diagnostic's own unit).
-    pub magnitude: f64,
+    pub magnitude: f32,
     /// Its line, if it has one.
     pub line: Option<u32>,
     /// Its message.
@@ -271,4 +271,61 @@ fn summary(mut h: Diagnostic, shown: u64) -> Option<Diagnostic> {
     ));
     h.sums_up = true;
     Some(h)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn over(line: u32, by: f64) -> Diagnostic {
+        Diagnostic::error("limits::range", format!("X past its limit by {by} mm"))
+            .at_line(line, "G1 X1", 1, 1)
+            .with_magnitude(by)
+    }
+
+    /// The summary names the worst hidden one, in its own words, at its line.
+    #[test]
+    fn the_worst_is_named_at_its_line() {
+        let mut flood = Flood::new(2);
+        let bys = [1.0, 9.0, 2.0, 7.5, 3.0, 0.5];
+        let shown = (0..bys.len())
+            .filter_map(|i| flood.admit(over(i as u32 + 10, bys[i])))
+            .count();
+        assert_eq!(shown, 2);
+        let s = flood.summaries();
+        assert_eq!(s.len(), 1);
+        assert_eq!(s[0].location.as_ref().map(|l| l.line), Some(13));
+        assert!(
+            s[0].message.starts_with("4 more `limits::range` errors not shown (6 in all, the first 2 above), on lines 12, 13, 14, … (12..15 in all); the worst of them: X past its limit by 7.5 mm (line 13)"),
+            "{}",
+            s[0].message
+        );
+        assert!(s[0].sums_up);
+    }
+
+    /// Counting where a pass reports (per batch, into carriers) and then across the run
+    /// shows and sums up exactly what counting across the run alone does.
+    #[test]
+    fn counting_per_batch_first_changes_nothing() {
+        let all: Vec<Diagnostic> = (0..40).map(|i| over(i + 1, f64::from(i % 7))).collect();
+        let mut direct = Flood::new(3);
+        let shown_direct: Vec<Diagnostic> = all
+            .iter()
+            .cloned()
+            .filter_map(|d| direct.admit(d))
+            .collect();
+        let mut run = Flood::new(3);
+        let mut shown = Vec::new();
+        for batch in all.chunks(6) {
+            let mut stored = Vec::new();
+            let mut output = Flood::new(3);
+            for d in batch {
+                output.push(d.clone(), &mut stored);
+            }
+            assert!(stored.len() <= 4, "three in full and one carrier");
+            shown.extend(stored.into_iter().filter_map(|d| run.admit(d)));
+        }
+        assert_eq!(shown, shown_direct);
+        assert_eq!(run.summaries(), direct.summaries());
+    }
 }
