@@ -245,7 +245,9 @@ impl Pipeline {
     /// Diagnostics go to `on_diag` in input order, a batch of blocks at a time as each
     /// batch is written (within a batch: the frontend's, then each pass's, then the
     /// backend's). `Err` only for I/O failures of the writer; input errors are counted in
-    /// the summary.
+    /// the summary. With [`Builder::max_repeats`] only the first few of each code come one
+    /// by one, and one summary per code with the rest comes last (the counts in the
+    /// summary include every one).
     ///
     /// Two threads share the work: this one reads the input while few batches are on
     /// their way; otherwise both run the passes and the backend on whichever batch waits
