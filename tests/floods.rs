@@ -147,4 +147,16 @@ fn one_block_with_thousands_of_warnings_is_summed_up_with_the_exact_count() {
     assert_eq!(summary["repeats"]["last_line"], 2);
     let message = summary["message"].as_str().expect("message");
     assert!(message.contains("on line 2;"), "{message}");
+    // The reach warnings carry how far past the arm's range they are: the worst is the
+    // chord end farthest out, near r = 100010 + 100000 mm on this circle about X100010.
+    let worst = &summary["repeats"]["worst"];
+    let r: f64 = worst["message"]
+        .as_str()
+        .and_then(|m| m.strip_prefix("r = "))
+        .and_then(|m| m.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("the worst message names r");
+    assert!((r - 200_010.0).abs() < 1.0, "{worst}");
+    assert!((worst["magnitude"].as_f64().unwrap_or(0.0) - (r - 150.0)).abs() < 0.1);
+    assert!(message.contains("the worst of them: r = "), "{message}");
 }

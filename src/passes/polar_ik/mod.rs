@@ -333,7 +333,9 @@ impl PolarIk {
                         self.polar.r_max
                     ),
                 )
-                .at_span(span),
+                .at_span(span)
+                // How far past the range, for naming the worst of many.
+                .with_magnitude((p.r - self.polar.r_max).max(self.polar.r_min() - p.r)),
             );
         }
     }
