@@ -11,6 +11,10 @@ use ncpost::passes;
 use ncpost::pipeline::{Builder, Pipeline, Source, Summary};
 use ncpost::preset::{BUILTIN, Emit, Preset};
 
+#[cfg(unix)]
+#[path = "main/cleanup.rs"]
+mod cleanup;
+
 /// Compiles NC programs: G-code in, RepRapFirmware or plain G-code out.
 #[derive(Parser)]
 #[command(name = "ncpost", version, about)]
@@ -679,6 +683,8 @@ impl Drop for EarlySync<'_> {
 }
 
 /// Writes to a temporary file beside `path` and renames it over `path` only on success.
+/// The temporary file is removed on failure, and on SIGINT, SIGTERM, SIGHUP and aborts
+/// (`cleanup`).
 fn write_atomically(
     path: &Path,
     body: impl FnOnce(&mut (dyn Write + Send), &mut Printer) -> Result<Summary, Diagnostic>,
@@ -697,6 +703,9 @@ fn write_atomically(
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
+    // Declared before the temporary file, so that it is dropped after it.
+    #[cfg(unix)]
+    let guard = cleanup::Guard::new();
     let mut tmp = match tempfile::Builder::new()
         .prefix(".ncpost-")
         .suffix(".tmp")
@@ -710,6 +719,8 @@ fn write_atomically(
             ));
         }
     };
+    #[cfg(unix)]
+    guard.set(tmp.path());
     let mut out = EarlySync::new(tmp.as_file_mut());
     let result = body(&mut out, printer);
     drop(out);

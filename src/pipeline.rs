@@ -10,6 +10,7 @@ use crate::back::{self, Backend};
 use crate::diag::{Diagnostic, Flood, Severity};
 use crate::front::{self, Frontend};
 use crate::ir::{Block, dump};
+use crate::machine::RapidRule;
 use crate::passes::{self, Output, Pass};
 use crate::preset::{Emit, PassSpec, Preset};
 use relay::{Batch, Schedule, Task};
@@ -169,6 +170,7 @@ impl Builder {
                 "Grbl has no subprograms: expand-subprograms runs first (it was not in the pipeline)",
             ));
         }
+        self.preset.resolve_flavours();
         if let Some(m) = &self.preset.machine {
             m.check()
                 .map_err(|e| Diagnostic::settings(format!("[machine]: {}", e.message)))?;
@@ -435,11 +437,21 @@ fn backend_for<'a>(
     out: &'a mut (impl Write + Send),
 ) -> Box<dyn Backend + Send + 'a> {
     match preset.emit {
-        Emit::Rrf => Box::new(back::rrf::Writer::new(out, &preset.rrf)),
+        Emit::Rrf => Box::new(
+            back::rrf::Writer::new(out, &preset.rrf).with_feed_on_rapids(feed_on_rapids(preset)),
+        ),
         Emit::Gcode => Box::new(back::gcode::Writer::new(out, &preset.gcode)),
         Emit::Grbl => Box::new(back::grbl::Writer::new(out, &preset.grbl)),
         Emit::Ir => Box::new(back::ir::Writer::new(out)),
     }
+}
+
+/// Whether the controller runs `G0` at the modal F (an FDM firmware): then every rapid
+/// is printed with the F it was timed at.
+fn feed_on_rapids(preset: &Preset) -> bool {
+    preset
+        .controller()
+        .is_some_and(|c| c.rapid_rule() == RapidRule::ModalFeed)
 }
 
 impl Stages {

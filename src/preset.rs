@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::back::{gcode, grbl, rrf};
 use crate::diag::Diagnostic;
 use crate::front;
-use crate::machine::Machine;
+use crate::machine::{Controller, Flavour, Machine};
 
 /// The output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -87,7 +87,47 @@ impl Preset {
     /// assert_eq!(p.passes[0].name, "verify");
     /// ```
     pub fn from_toml(text: &str) -> Result<Preset, Diagnostic> {
-        toml::from_str(text).map_err(|e: toml::de::Error| Diagnostic::settings(e.to_string()))
+        let mut preset: Preset = toml::from_str(text)
+            .map_err(|e: toml::de::Error| Diagnostic::settings(e.to_string()))?;
+        preset.resolve_flavours();
+        Ok(preset)
+    }
+
+    /// Gives the controllers that name no firmware flavour the one this preset's
+    /// backend prints for: RepRapFirmware in FDM mode for a polar printer and in CNC
+    /// mode otherwise, Grbl, LinuxCNC for plain G-code.
+    ///
+    /// ```
+    /// use ncpost::machine::Flavour;
+    /// let p = ncpost::preset::Preset::builtin("polar-printer").unwrap();
+    /// assert_eq!(p.polar.unwrap().controller.flavour, Some(Flavour::RrfFdm));
+    /// ```
+    pub fn resolve_flavours(&mut self) {
+        let flavour = match self.emit {
+            Emit::Rrf if self.polar.is_some() => Flavour::RrfFdm,
+            Emit::Rrf => Flavour::RrfCnc,
+            Emit::Grbl => Flavour::Grbl,
+            Emit::Gcode => Flavour::Linuxcnc,
+            Emit::Ir => return,
+        };
+        for c in [
+            self.polar.as_mut().map(|p| &mut p.controller),
+            self.machine.as_mut().map(|m| &mut m.controller),
+        ]
+        .into_iter()
+        .flatten()
+        {
+            c.flavour.get_or_insert(flavour);
+        }
+    }
+
+    /// The controller the run's timing follows: the polar machine's, else the
+    /// machine's.
+    pub fn controller(&self) -> Option<&Controller> {
+        self.polar
+            .as_ref()
+            .map(|p| &p.controller)
+            .or(self.machine.as_ref().map(|m| &m.controller))
     }
 
     /// A built-in preset by name.

@@ -287,9 +287,21 @@ fn arc_both_ijk_and_r() {
     assert!(d.message.contains("both"), "{d}");
 }
 
+/// The opt-in for controllers that cut an arc off its circle (Mach3).
+fn keep_off_circle_arcs() -> Options {
+    Options {
+        strict_arcs: false,
+        ..Default::default()
+    }
+}
+
 #[test]
-fn arc_radius_mismatch_warns_by_default() {
-    let diags = check_text("arc_radius_mismatch.gcode", "arc_radius_mismatch");
+fn arc_radius_mismatch_warns_when_kept() {
+    let diags = check_text_with(
+        "arc_radius_mismatch.gcode",
+        "arc_radius_mismatch",
+        &keep_off_circle_arcs(),
+    );
     let d = only(&diags);
     expect(d, Severity::Warning, "gcode::arc-radius", 4, 1);
     assert!(
@@ -300,16 +312,8 @@ fn arc_radius_mismatch_warns_by_default() {
 }
 
 #[test]
-fn arc_radius_mismatch_is_an_error_with_strict_arcs() {
-    let options = Options {
-        strict_arcs: true,
-        ..Default::default()
-    };
-    let diags = check_text_with(
-        "arc_radius_mismatch.gcode",
-        "arc_radius_mismatch_strict",
-        &options,
-    );
+fn arc_radius_mismatch_is_an_error_by_default() {
+    let diags = check_text("arc_radius_mismatch.gcode", "arc_radius_mismatch_strict");
     let d = only(&diags);
     expect(d, Severity::Error, "gcode::arc", 4, 1);
     assert!(
@@ -320,8 +324,12 @@ fn arc_radius_mismatch_is_an_error_with_strict_arcs() {
 }
 
 #[test]
-fn arc_r_chord_too_long_warns_by_default() {
-    let diags = check_text("arc_r_chord_too_long.gcode", "arc_r_chord_too_long");
+fn arc_r_chord_too_long_warns_when_kept() {
+    let diags = check_text_with(
+        "arc_r_chord_too_long.gcode",
+        "arc_r_chord_too_long",
+        &keep_off_circle_arcs(),
+    );
     let d = only(&diags);
     expect(d, Severity::Warning, "gcode::arc-radius", 5, 1);
     // g20: R0.5 inch is 12.7 mm.
@@ -329,16 +337,8 @@ fn arc_r_chord_too_long_warns_by_default() {
 }
 
 #[test]
-fn arc_r_chord_too_long_is_an_error_with_strict_arcs() {
-    let options = Options {
-        strict_arcs: true,
-        ..Default::default()
-    };
-    let diags = check_text_with(
-        "arc_r_chord_too_long.gcode",
-        "arc_r_chord_too_long_strict",
-        &options,
-    );
+fn arc_r_chord_too_long_is_an_error_by_default() {
+    let diags = check_text("arc_r_chord_too_long.gcode", "arc_r_chord_too_long_strict");
     expect(only(&diags), Severity::Error, "gcode::arc", 5, 1);
 }
 

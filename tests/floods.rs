@@ -2,7 +2,7 @@
 //! first few (`--max-repeats`, default 5) are summed up in one message at the end with the
 //! true count, their lines and the worst case, on standard error in human and JSON form;
 //! the exit code and the error count still count every one; and a block that gives
-//! millions of warnings does not store them (the summary's count is exact).
+//! millions of errors does not store them (the summary's count is exact).
 //!
 //! Each run goes through the `ncpost` binary and reads what it printed.
 
@@ -123,12 +123,12 @@ fn max_repeats_sets_how_many_are_shown_and_zero_shows_all() {
 }
 
 /// One arc of a polar printer far outside the arm's reach, cut into chords each out of
-/// reach: the warnings of that one block are counted, not stored, and the summary counts
+/// reach: the errors of that one block are counted, not stored, and the summary counts
 /// every chord (the same count the full list gives).
 #[test]
-fn one_block_with_thousands_of_warnings_is_summed_up_with_the_exact_count() {
+fn one_block_with_thousands_of_errors_is_summed_up_with_the_exact_count() {
     let input = "G0 X10 Y0\nG2 X10 Y0 I100000 J0 F1000\n";
-    let run = |extra: &[&str]| check_json("polar-printer", extra, input, "nc", 0);
+    let run = |extra: &[&str]| check_json("polar-printer", extra, input, "nc", 1);
     let all = run(&["--max-repeats", "0"]);
     let reach_all = all
         .lines()
@@ -141,13 +141,13 @@ fn one_block_with_thousands_of_warnings_is_summed_up_with_the_exact_count() {
         .lines()
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
         .find(|m| m["code"] == "polar-ik::reach" && !m["repeats"].is_null())
-        .expect("a summary of the reach warnings");
+        .expect("a summary of the reach errors");
     assert_eq!(summary["repeats"]["count"].as_u64(), Some(reach_all - 5));
     assert_eq!(summary["repeats"]["first_line"], 2);
     assert_eq!(summary["repeats"]["last_line"], 2);
     let message = summary["message"].as_str().expect("message");
     assert!(message.contains("on line 2;"), "{message}");
-    // The reach warnings carry how far past the arm's range they are: the worst is the
+    // The reach errors carry how far past the arm's range they are: the worst is the
     // chord end farthest out, near r = 100010 + 100000 mm on this circle about X100010.
     let worst = &summary["repeats"]["worst"];
     let r: f64 = worst["message"]

@@ -385,7 +385,7 @@ fn arc_turns_need_linearize_arcs() {
 #[test]
 fn long_lines_are_errors() {
     // 9 decimals: the helix line has more than 79 characters Grbl counts.
-    let src = "G0 X-12345.123456789 Y-12345.123456789 Z-1.5\nG2 X-12345.123456789 Y-12335.123456789 Z-123.123456789 I0.123456789 J5.123456789 F1000\n";
+    let src = "G0 X-12345.123456789 Y-12345.123456789 Z-1.5\nG2 X-12345.123456789 Y-12334.876543211 Z-123.123456789 I0.123456789 J5.123456789 F1000\n";
     let toml = "[grbl.decimals]\nlinear = 9\nrotary = 3\nextruder = 5\nfeed = 1\n";
     let (_, diags) = run_toml(src, toml);
     let errs: Vec<Diagnostic> = errors(&diags).into_iter().cloned().collect();

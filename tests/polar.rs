@@ -552,11 +552,18 @@ fn preset_loads_and_runs_end_to_end() {
     assert_eq!(p.origin_policy(), OriginPolicy::RotateInPlace);
     assert_eq!(p.valve.open_command, "M42 P0 S1");
     let names: Vec<&str> = preset.passes.iter().map(|s| s.name.as_str()).collect();
-    // The final order is polar-ik, valve-lookahead, extrude-rate, verify.
-    let order: Vec<&str> = ["polar-ik", "valve-lookahead", "extrude-rate", "verify"]
-        .into_iter()
-        .filter(|n| names.contains(n))
-        .collect();
+    // The final order is polar-ik, valve-lookahead, extrude-rate, machine-settings,
+    // verify.
+    let order: Vec<&str> = [
+        "polar-ik",
+        "valve-lookahead",
+        "extrude-rate",
+        "machine-settings",
+        "verify",
+    ]
+    .into_iter()
+    .filter(|n| names.contains(n))
+    .collect();
     assert_eq!(names, order);
     assert_eq!(names.first(), Some(&"polar-ik"));
     assert!(names.contains(&"extrude-rate"));

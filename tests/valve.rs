@@ -597,7 +597,9 @@ fn real_sliced_file_through_the_polar_printer_preset() {
     let items = timeline(&out, &polar(), Timing::ConstantVelocity, Flow::Screw);
     let (worst, n) = check_valve(&items, 0.2, 0.1);
     assert!(n > 250, "{n} runs");
-    assert!(worst < 1e-4, "{worst}");
+    // Short hops wait with `G4 P`, which the firmware reads in whole milliseconds: the
+    // printed dwell is the nearest one, within half a millisecond.
+    assert!(worst <= 5e-4 + 1e-9, "{worst}");
     eprintln!("cube: {n} runs, worst {worst:.2e} s, {:?}", start.elapsed());
 }
 

@@ -353,11 +353,12 @@ impl<W: Write> Emitter<W> {
             BlockKind::Motion(m) => self.motion(block, m),
             BlockKind::Dwell { seconds } => {
                 self.text("G4");
-                let letter = 'P';
                 if self.fmt.dwell_milliseconds {
-                    self.word(letter, seconds * 1000.0, 3, block)?;
+                    // RepRapFirmware, Marlin and Fanuc read `G4 P` as whole milliseconds:
+                    // a fraction would be cut off (or refused) by the controller.
+                    self.word('P', seconds * 1000.0, 0, block)?;
                 } else {
-                    self.word(letter, *seconds, 3, block)?;
+                    self.word('P', *seconds, 3, block)?;
                 }
                 self.end_line(&block.comments, true)
             }

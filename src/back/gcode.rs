@@ -70,6 +70,7 @@ impl<W: Write> Writer<W> {
             modal_motion: options.modal_motion,
             extrusion: options.extrusion,
             dwell_milliseconds: options.dwell_milliseconds,
+            feed_on_rapids: false,
         };
         Writer(Emitter::new(out, Flavor::Plain, fmt))
     }

@@ -129,6 +129,7 @@ impl<W: Write> Writer<W> {
             extrusion: Extrusion::Relative,
             // Grbl's `G4 P` is in seconds.
             dwell_milliseconds: false,
+            feed_on_rapids: false,
         };
         let flavor = Flavor::Grbl(Settings {
             allow_g93: options.allow_g93,

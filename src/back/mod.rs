@@ -83,6 +83,9 @@ pub(crate) struct Format {
     pub modal_motion: bool,
     pub extrusion: Extrusion,
     pub dwell_milliseconds: bool,
+    /// The controller runs `G0` at the modal F (an FDM firmware): F is printed on
+    /// rapids too, so each runs at the F it was timed at.
+    pub feed_on_rapids: bool,
 }
 
 /// Which controller the text is for.

@@ -231,14 +231,14 @@ impl<W: std::io::Write> Emitter<W> {
         Ok(())
     }
 
-    /// F is modal and only matters to feed moves: printed there, when it changes (and
-    /// on every inverse-time move).
+    /// F is modal and matters to feed moves, and to rapids on a controller that runs
+    /// them at the modal F: printed there, when it changes (and on every inverse-time
+    /// move).
     fn feed_word(&mut self, motion: &Motion, block: &Block) -> Result<(), Diagnostic> {
-        if let Some(rate) = motion
-            .feed
-            .rate
-            .filter(|_| !matches!(motion.kind, MotionKind::Rapid))
-        {
+        let rapid = matches!(motion.kind, MotionKind::Rapid);
+        if let Some(rate) = motion.feed.rate.filter(|_| {
+            !rapid || (self.fmt.feed_on_rapids && motion.feed.mode == FeedMode::PerMinute)
+        }) {
             let fu = to_units(rate, self.fmt.decimals.feed)
                 .ok_or_else(|| too_large('F', rate, block))?;
             let must = motion.feed.mode == FeedMode::InverseTime

@@ -96,12 +96,20 @@ impl<W: Write> Writer<W> {
             extrusion: options.extrusion,
             // `G4 P` in milliseconds keeps the number of the (Fanuc/Marlin/RRF) source.
             dwell_milliseconds: true,
+            feed_on_rapids: false,
         };
         let flavor = Flavor::Rrf {
             inverse_time: options.inverse_time,
             unsupported: options.unsupported,
         };
         Writer(Emitter::new(out, flavor, fmt))
+    }
+
+    /// The same writer for a controller that runs `G0` at the modal F (RepRapFirmware
+    /// in FDM mode): rapids carry the F they were timed at.
+    pub fn with_feed_on_rapids(mut self, on: bool) -> Self {
+        self.0.fmt.feed_on_rapids = on;
+        self
     }
 }
 

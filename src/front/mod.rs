@@ -53,6 +53,19 @@ pub enum RawLine<'a> {
 pub type LineBytes<'a> = (Option<&'a [u8]>, Span);
 
 /// Reads lines with bounded memory: a line over `max_len` bytes is skipped, not buffered.
+///
+/// A UTF-8 byte-order mark at the start of the input (Windows editors write one) is
+/// skipped, for every frontend: it is no part of the first line, whose first statement
+/// (`UNITS/INCHES`, `G20`) would otherwise not be recognised. The first line's span
+/// starts after it.
+///
+/// ```
+/// use ncpost::front::{LineReader, RawLine};
+/// let mut r = LineReader::new(&b"\xEF\xBB\xBFUNITS/INCHES\n"[..], 100);
+/// let (line, span) = r.next_line().unwrap().unwrap();
+/// assert!(matches!(line, RawLine::Text("UNITS/INCHES")));
+/// assert_eq!(span.offset, 3);
+/// ```
 pub struct LineReader<R> {
     inner: R,
     buf: Vec<u8>,
@@ -61,7 +74,12 @@ pub struct LineReader<R> {
     line: u32,
     /// Bytes of the last line, read in place from `inner`'s buffer, still to consume.
     pending: usize,
+    /// The start of the input was looked at for a byte-order mark.
+    bom_checked: bool,
 }
+
+/// The UTF-8 byte-order mark.
+const BOM: &[u8] = b"\xEF\xBB\xBF";
 
 /// The length of the line whose `\n` is at `chunk[newline]`, as a line is counted: without
 /// the `\n` and a `\r` before it.
@@ -83,7 +101,29 @@ impl<R: BufRead> LineReader<R> {
             offset: 0,
             line: 0,
             pending: 0,
+            bom_checked: false,
         }
+    }
+
+    /// Skips a byte-order mark at the start of the input (once, before the first line).
+    /// A reader whose first read gives fewer than three bytes keeps the mark.
+    fn skip_bom(&mut self) -> io::Result<()> {
+        if self.bom_checked {
+            return Ok(());
+        }
+        self.bom_checked = true;
+        let starts = loop {
+            match self.inner.fill_buf() {
+                Ok(chunk) => break chunk.starts_with(BOM),
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            }
+        };
+        if starts {
+            self.inner.consume(BOM.len());
+            self.offset += BOM.len() as u64;
+        }
+        Ok(())
     }
 
     /// Bytes consumed so far.
@@ -107,6 +147,7 @@ impl<R: BufRead> LineReader<R> {
     /// can take whole lines from the buffer itself and then [`LineReader::skip_lines`]
     /// them, without the search for each line's end.
     pub fn buffered(&mut self) -> io::Result<(&[u8], (u64, u32))> {
+        self.skip_bom()?;
         if self.pending > 0 {
             self.inner.consume(self.pending);
             self.pending = 0;
@@ -134,6 +175,7 @@ impl<R: BufRead> LineReader<R> {
     /// a line over the limit. For a reader that can take some lines as bytes (all ASCII
     /// when it takes them) and check the others with [`decode`].
     pub fn next_line_bytes(&mut self) -> io::Result<Option<LineBytes<'_>>> {
+        self.skip_bom()?;
         if self.pending > 0 {
             self.inner.consume(self.pending);
             self.pending = 0;
@@ -311,6 +353,15 @@ mod tests {
             rest = next;
         }
         out
+    }
+
+    /// A byte-order mark is skipped at the start of the input only; offsets count it.
+    #[test]
+    fn bom_at_the_start_only() {
+        let bytes = b"\xEF\xBB\xBFG20\n\xEF\xBB\xBFG1\n";
+        let lines = read_all(bytes, 64, 100);
+        assert_eq!(lines[0], (0, "G20".to_string(), 3, 3, 1));
+        assert_eq!(lines[1], (0, "\u{feff}G1".to_string(), 7, 5, 2));
     }
 
     proptest::proptest! {

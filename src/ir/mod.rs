@@ -514,6 +514,42 @@ pub struct Command {
     pub clobbers: AxisSet,
 }
 
+impl Command {
+    /// `M2` / `M30`: the program ends here, and nothing runs after it.
+    ///
+    /// ```
+    /// use ncpost::ir::{AxisSet, Command};
+    /// let c = |t: &str| Command { text: t.into(), modes: None, clobbers: AxisSet::EMPTY };
+    /// assert!(c("M30").ends_program() && c("m02").ends_program());
+    /// assert!(!c("M3 S1000").ends_program() && !c("M0").ends_program());
+    /// ```
+    pub fn ends_program(&self) -> bool {
+        self.has_m_code(&[2, 30])
+    }
+
+    /// `M0`, `M1`, `M2`, `M30`: the machine stops here (a pause, or the end), so
+    /// anything left running (a spindle, a screw) keeps running in the stopped machine.
+    ///
+    /// ```
+    /// use ncpost::ir::{AxisSet, Command};
+    /// let c = |t: &str| Command { text: t.into(), modes: None, clobbers: AxisSet::EMPTY };
+    /// assert!(c("M0").stops_machine() && c("M30").stops_machine());
+    /// assert!(!c("M3 S1000").stops_machine());
+    /// ```
+    pub fn stops_machine(&self) -> bool {
+        self.has_m_code(&[0, 1, 2, 30])
+    }
+
+    /// Whether one of the words is an M code numbered in `codes` (`M02` is M2).
+    fn has_m_code(&self, codes: &[u32]) -> bool {
+        self.text.split_whitespace().any(|w| {
+            w.strip_prefix(['M', 'm'])
+                .and_then(|n| n.parse::<u32>().ok())
+                .is_some_and(|n| codes.contains(&n))
+        })
+    }
+}
+
 /// Why a line travels as text.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum VerbatimReason {
@@ -580,6 +616,25 @@ pub enum BlockKind {
     Verbatim(Verbatim),
     /// A line that holds only comments (they are in [`Block::comments`]).
     Comment,
+}
+
+/// The comment a frontend adds to the statement that sets a rotated coordinate frame it
+/// does not apply to the tool poses that follow (NX `MSYS` under `msys = "ignore"`, APT
+/// `CSYS`). A pass that finds tool axes it cannot reach says so in its help: the frame
+/// may be why.
+pub const FRAME_NOT_APPLIED: &str = " ncpost: rotated frame not applied to the points";
+
+/// Whether `block` carries the [`FRAME_NOT_APPLIED`] note.
+///
+/// ```
+/// use ncpost::ir::{Block, BlockKind, Comment, CommentStyle, Span, FRAME_NOT_APPLIED, frame_not_applied};
+/// let mut b = Block::new(Span::default(), BlockKind::Comment);
+/// assert!(!frame_not_applied(&b));
+/// b.comments.push(Comment { text: FRAME_NOT_APPLIED.into(), style: CommentStyle::Semicolon });
+/// assert!(frame_not_applied(&b));
+/// ```
+pub fn frame_not_applied(block: &Block) -> bool {
+    block.comments.iter().any(|c| c.text == FRAME_NOT_APPLIED)
 }
 
 /// One statement of the program.

@@ -25,11 +25,13 @@
 pub mod angle;
 mod chain;
 mod config_g;
+mod flavour;
 pub mod grid;
 mod inverse;
 pub mod polar;
 
 pub use chain::{PathEnd, ToolPose, Turns};
+pub use flavour::{Flavour, RapidRule};
 pub use inverse::{Orientation, Solutions};
 
 use serde::{Deserialize, Serialize};
@@ -293,6 +295,17 @@ pub struct Controller {
     /// Instantaneous speed change allowed per axis at a junction, mm/min or deg/min
     /// (RepRapFirmware `M566`); an axis without one stops to change speed.
     pub jerk: PerAxis,
+    /// The firmware (`rrf-fdm`, `rrf-cnc`, `grbl`, `linuxcnc`, `marlin`, `klipper`); a
+    /// preset that names none gets the one of its backend. Without one, rapids run at a
+    /// fixed `rapid_feed`.
+    pub flavour: Option<Flavour>,
+}
+
+impl Controller {
+    /// How fast `G0` runs on this controller ([`RapidRule::Fixed`] without a flavour).
+    pub fn rapid_rule(&self) -> RapidRule {
+        self.flavour.map_or(RapidRule::Fixed, Flavour::rapid_rule)
+    }
 }
 
 impl Default for Controller {
@@ -306,6 +319,7 @@ impl Default for Controller {
             timing: Timing::ConstantVelocity,
             lookahead: 16,
             jerk: PerAxis::default(),
+            flavour: None,
         }
     }
 }

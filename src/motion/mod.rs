@@ -66,7 +66,7 @@ use std::collections::VecDeque;
 
 use crate::ir::{AXIS_COUNT, Arc, Axis, FeedMode, Joints, Motion, MotionKind, Target};
 use crate::machine::polar::Polar;
-use crate::machine::{Controller, FeedRule, Machine, PerAxis};
+use crate::machine::{Controller, FeedRule, Machine, PerAxis, RapidRule};
 use nalgebra::Point3;
 
 /// Speed assumed for rapids when nothing else is known, mm/min.
@@ -97,8 +97,12 @@ pub struct Model {
     pub timing: Timing,
     /// The controller's lowest speed, units/s.
     pub min_speed: f64,
-    /// Rapid speed along the rule distance, units/s.
+    /// Rapid speed along the rule distance, units/s: for every rapid under
+    /// [`RapidRule::Fixed`], else where the rule leaves the speed open (no F yet, no
+    /// axis cap).
     pub rapid_speed: f64,
+    /// How fast the controller runs `G0`.
+    pub rapid: RapidRule,
     /// Motion blocks the trapezoid planner looks ahead.
     pub lookahead: usize,
     max_speed: [Option<f64>; AXIS_COUNT],
@@ -121,6 +125,7 @@ impl Model {
             timing: controller.timing,
             min_speed: controller.min_speed.max(0.0) / 60.0,
             rapid_speed: DEFAULT_RAPID_FEED / 60.0,
+            rapid: controller.rapid_rule(),
             lookahead: controller.lookahead.max(1),
             max_speed: per_axis(&controller.max_feed, 1.0 / 60.0),
             accel: per_axis(&controller.acceleration, 1.0),
@@ -198,6 +203,12 @@ impl Model {
             _ => None,
         };
         let feed = match (kind, feed.mode, feed.rate) {
+            (MotionKind::Rapid, FeedMode::PerMinute, Some(f))
+                if self.rapid == RapidRule::ModalFeed && f > 0.0 =>
+            {
+                Some(Feed::PerMinute(f))
+            }
+            (MotionKind::Rapid, _, _) if self.rapid == RapidRule::MaxSpeed => Some(Feed::MaxSpeed),
             (MotionKind::Rapid, _, _) => None,
             (_, FeedMode::InverseTime, Some(f)) if f > 0.0 => Some(Feed::InverseTime(f)),
             (_, FeedMode::PerMinute, Some(f)) if f > 0.0 => Some(Feed::PerMinute(f)),
@@ -236,6 +247,8 @@ impl Model {
             None => self.rapid_speed,
             Some(Feed::PerMinute(f)) => (f / 60.0).max(self.min_speed),
             Some(Feed::InverseTime(f)) => length * f / 60.0,
+            // Capped below by the moving axes; uncapped, the run's rapid speed.
+            Some(Feed::MaxSpeed) => f64::INFINITY,
         };
         // Constant velocity has no acceleration: the axes' acceleration limits do not
         // apply to it.
@@ -266,7 +279,7 @@ impl Model {
                 seg.accel = seg.accel.min(a / u);
             }
         }
-        seg.v_max = v;
+        seg.v_max = if v.is_finite() { v } else { self.rapid_speed };
         seg
     }
 
@@ -290,6 +303,8 @@ impl Model {
 enum Feed {
     PerMinute(f64),
     InverseTime(f64),
+    /// A rapid at the axes' caps.
+    MaxSpeed,
 }
 
 /// The distance the controller applies F to, for joint deltas `delta` (mm, degrees);

@@ -7,10 +7,12 @@
 //!
 //! - [`decimal`]: reading a decimal number exactly (`-1.25`, `.5`, `3.`);
 //! - [`lexer`]: the tokens of one line of G-code (words, comments, strings);
-//! - [`print`]: fixed-precision printing and the print quantization (`to_units`, `printed`).
+//! - [`print`]: fixed-precision printing and the print quantization (`to_units`, `printed`);
+//! - [`range`]: the largest value a program may write, and long tokens cut for messages.
 
 pub mod decimal;
 pub mod lexer;
 pub mod print;
+pub mod range;
 
 pub use decimal::{parse_decimal, scan_decimal};

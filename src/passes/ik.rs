@@ -170,6 +170,9 @@ pub struct Ik {
     within_step_cos: f64,
     /// The rotaries' limits (`None`: cyclic), listing order.
     limits: [Option<(f64, f64)>; 2],
+    /// The line of the first statement that set a rotated frame the frontend did not
+    /// apply ([`crate::ir::FRAME_NOT_APPLIED`]): named in the help of unreachable poses.
+    frame_note: Option<u32>,
 }
 
 impl Ik {
@@ -190,6 +193,7 @@ impl Ik {
             cone_cos,
             within_step_cos: (WALK_STEP * (1.0 - 1e-6)).to_radians().cos(),
             limits,
+            frame_note: None,
         })
     }
 
@@ -551,6 +555,9 @@ impl Ik {
     /// What a block other than a pose motion tells the pass about the axes: the one
     /// position tracker of the IR ([`Tracker`]) follows it.
     fn track(&mut self, block: &Block) {
+        if self.frame_note.is_none() && crate::ir::frame_not_applied(block) {
+            self.frame_note = Some(block.span.line);
+        }
         let mut tracker = Tracker::at(self.prev);
         tracker.update(block);
         self.prev = *tracker.pos();
@@ -625,9 +632,12 @@ impl Ik {
                 self.ranges()
             ),
         )
-        .with_help(
-            "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out",
-        )
+        .with_help(match self.frame_note {
+            Some(line) => format!(
+                "line {line} sets a rotated coordinate frame (MSYS or CSYS) that was not applied to the points; if the CAM wrote the tool axes in that frame, set `[cl_input] msys = \"apply\"` (NX MSYS) or output the path in the base frame; otherwise tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out"
+            ),
+            None => "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out".into(),
+        })
     }
 
     /// Pose motion `m` needs the rotaries to flip to the other solution, `jump` degrees

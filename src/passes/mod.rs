@@ -13,6 +13,7 @@ pub mod heightmap;
 pub mod ik;
 pub mod limits;
 pub mod linearize_arcs;
+pub mod machine_settings;
 pub mod mirror;
 pub mod normalize;
 pub mod order_paths;
@@ -222,6 +223,7 @@ pub const REGISTRY: &[PassInfo] = &[
     polar_ik::INFO,
     extrude_rate::INFO,
     valve_lookahead::INFO,
+    machine_settings::INFO,
     linearize_arcs::INFO,
     normalize::INFO,
     heightmap::INFO,

@@ -235,7 +235,10 @@ fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
                 return Err(stmt.locate(
                     Diagnostic::error(
                         "cl::bad-number",
-                        format!("`{}` needs a number after it", text(stmt, a)),
+                        format!(
+                            "`{}` needs a number after it",
+                            crate::num::range::shown(text(stmt, a))
+                        ),
                     )
                     .with_label("number expected")
                     .with_help("write the keyword and then its value, e.g. FEDTO,5"),
@@ -244,13 +247,20 @@ fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
                 ));
             };
             match crate::num::parse_decimal(text(stmt, x)) {
-                Some(v) if v.is_finite() => Ok(v),
+                Some(v) if crate::num::range::in_range(v) => Ok(v),
                 _ => Err(stmt.locate(
                     Diagnostic::error(
                         "cl::bad-number",
-                        format!("`{}` is out of range", text(stmt, x)),
+                        format!(
+                            "`{}` is out of range",
+                            crate::num::range::shown(text(stmt, x))
+                        ),
                     )
-                    .with_label("too large"),
+                    .with_label("too large")
+                    .with_help(format!(
+                        "CL values must be finite and at most {:e} in size",
+                        crate::num::range::MAX_MAGNITUDE
+                    )),
                     x.start,
                     x.end,
                 )),
@@ -290,7 +300,10 @@ fn written(stmt: &Statement, args: &[Arg]) -> Result<Written, Diagnostic> {
                 return Err(unsupported(
                     stmt,
                     args,
-                    format!("the CYCLE word `{word}` is not understood"),
+                    format!(
+                        "the CYCLE word `{}` is not understood",
+                        crate::num::range::shown(&word)
+                    ),
                 ));
             }
         }

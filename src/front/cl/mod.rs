@@ -26,7 +26,9 @@
 //! | `DELAY/s`, `DELAY/REV,n` | dwell |
 //! | `END`, `FINI`, `STOP`, `OPSTOP` | command [`Options::end_command`] (`M0`), [`Options::fini_command`] (`M2`), `M0`, `M1` |
 //! | `$$ text`, `PPRINT text` | comment |
-//! | `PARTNO`, `INSERT`, `CUTTER`, `CUTCOM`, `CSYS`, `TOOL PATH`, `TLDATA`, `MSYS`, `PAINT`, `END-OF-PATH`, `TRNTYP`, `SELECT`, NX listing header lines | comment (the statement as written) |
+//! | `NURBS/[DEGREE,d]`, `KNOT/u,...`, `CNTRL/x,y,z[,w][,i,j,k]` (NX) | straight pieces along the spline ([`Options::arc_tolerance`]) |
+//! | `MSYS/x,y,z,i1,j1,k1,i2,j2,k2` (NX) | comment; applied to the points under [`Options::msys`] `apply` |
+//! | `PARTNO`, `INSERT`, `CUTTER`, `CUTCOM`, `CSYS`, `TOOL PATH`, `TLDATA`, `PAINT`, `END-OF-PATH`, `TRNTYP`, `SELECT`, NX listing header lines | comment (the statement as written) |
 //! | anything else | comment, with a warning |
 //!
 //! `$` at the end of a line continues the statement on the next line (a `$$` comment may
@@ -66,7 +68,15 @@
 //!   base frame. Its Z column becomes the current tool axis: APT++ writes 3-value GOTOs
 //!   only under a CSYS whose Z column is +Z (so a drilling operation after a tilted one
 //!   is vertical again) and 6-value GOTOs with the Z column as their axis otherwise.
-//!   NX `MSYS` likewise (NX writes points in the MCS it names).
+//!   A CSYS that rotates carries the note [`crate::ir::FRAME_NOT_APPLIED`].
+//! - **MSYS**: NX writes points and tool axes in the MCS it names. By default they are used
+//!   as written, as NX's postprocessors print them (one warning when the MSYS is not the
+//!   identity; a rotating one carries the note [`crate::ir::FRAME_NOT_APPLIED`]); with
+//!   [`Options::msys`] `apply` they become `origin + R p` and `R a` (R: the MCS axes as
+//!   columns) and the tool axis in force becomes the MCS Z axis.
+//! - **NURBS**: see the `spline` module: the records up to the next other statement make
+//!   one spline, checked, evaluated and cut within [`Options::arc_tolerance`]; one that
+//!   cannot be evaluated is an error at its `NURBS/` line.
 //! - **CYCLE**: each `GOTO` between a drilling `CYCLE` and `CYCLE/OFF` is the top point
 //!   P of a hole, T the tool axis, and the values are distances from P along T (as
 //!   APT++ writes them: the `GOTO` before the cycle is P + RTRCTO·T). The hole: rapid to
@@ -94,6 +104,7 @@ mod motion;
 mod options;
 mod read;
 mod source;
+mod spline;
 
 use std::io::BufRead;
 
@@ -102,7 +113,7 @@ use crate::front::Frontend;
 use crate::ir::Block;
 
 pub use crate::front::gcode::Program;
-pub use options::{Options, Units};
+pub use options::{Msys, Options, Units};
 
 /// Streaming CL frontend over any buffered reader; memory stays bounded (lines, one
 /// statement, a bounded look at the start, arcs handed out piece by piece).
@@ -127,6 +138,8 @@ pub struct Parser<R> {
     pending: Vec<Block>,
     started: bool,
     done: bool,
+    /// `stmt` ended a spline and waits until the spline's pieces are handed out.
+    held: bool,
 }
 
 impl<R: BufRead> Parser<R> {
@@ -139,6 +152,7 @@ impl<R: BufRead> Parser<R> {
             pending: Vec::new(),
             started: false,
             done: false,
+            held: false,
         }
     }
 
@@ -154,12 +168,20 @@ impl<R: BufRead> Parser<R> {
                 self.lower.expand(out, want - out.len());
                 continue;
             }
+            if std::mem::take(&mut self.held) {
+                self.lower.statement(&self.stmt, out, diags);
+                continue;
+            }
             if self.done {
                 break;
             }
             let join = !self.lower.is_triplet();
             if self.source.next_statement(&mut self.stmt, join, diags) {
-                self.lower.statement(&self.stmt, out, diags);
+                // A statement after a NURBS's records comes after its pieces.
+                self.held = self.lower.closes_spline(&self.stmt, diags);
+                if !self.held {
+                    self.lower.statement(&self.stmt, out, diags);
+                }
                 continue;
             }
             self.done = true;

@@ -15,12 +15,26 @@ pub enum Units {
     Inch,
 }
 
+/// What the frontend does with NX `MSYS` (the machine coordinate system the points
+/// that follow are written in).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "kebab-case")]
+pub enum Msys {
+    /// Use the points as written, in the MCS: what NX's own postprocessors print (the
+    /// MCS origin is the work offset). A rotated or moved MCS gets one warning.
+    #[default]
+    Ignore,
+    /// Move points and tool axes from the MCS into the frame `MSYS` is given in (NX's
+    /// absolute coordinate system): `p' = origin + R p`, `a' = R a`.
+    Apply,
+}
+
 /// Frontend options.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Options {
-    /// Chord tolerance (mm) for turning CIRCLE/MOVARC arcs into straight pieces in the
-    /// part frame.
+    /// Chord tolerance (mm) for turning CIRCLE/MOVARC arcs and NURBS splines into
+    /// straight pieces in the part frame.
     pub arc_tolerance: f64,
     /// Largest distance (mm) of an arc's start or end point from its circle, beyond
     /// which the arc becomes a straight move with a warning (0.1 % of the radius is also
@@ -38,6 +52,8 @@ pub struct Options {
     /// Longest line accepted, bytes; a longer line is an error and is skipped. Also the
     /// limit of a statement continued over several lines.
     pub max_line_len: usize,
+    /// NX `MSYS`: `ignore` (the default, as NX posts do) or `apply`.
+    pub msys: Msys,
 }
 
 impl Default for Options {
@@ -50,6 +66,7 @@ impl Default for Options {
             fini_command: "M2".into(),
             peck_clearance: 0.5,
             max_line_len: 1 << 20,
+            msys: Msys::Ignore,
         }
     }
 }

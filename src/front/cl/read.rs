@@ -154,11 +154,11 @@ pub(super) fn major_words(code: &str) -> String {
 /// The error for a statement that does not follow the grammar.
 pub(super) fn syntax_error(stmt: &Statement, at: Unexpected<'_>) -> Diagnostic {
     let what = match at.token {
-        Some(Tok::Word(w)) => format!("word `{w}`"),
-        Some(Tok::Number(n)) => format!("number `{n}`"),
+        Some(Tok::Word(w)) => format!("word `{}`", crate::num::range::shown(w)),
+        Some(Tok::Number(n)) => format!("number `{}`", crate::num::range::shown(n)),
         Some(Tok::Slash) => "`/`".into(),
         Some(Tok::Comma) => "`,`".into(),
-        Some(Tok::Other(o)) => format!("`{o}`"),
+        Some(Tok::Other(o)) => format!("`{}`", crate::num::range::shown(o)),
         None => "the end of the statement".into(),
     };
     stmt.locate(

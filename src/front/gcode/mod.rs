@@ -34,8 +34,10 @@ pub struct Options {
     /// Largest difference between an arc's start and end radius, mm, below which the
     /// arc is accepted (a relative 0.1 % of the radius is also allowed).
     pub arc_tolerance: f64,
-    /// An arc whose end is off its circle by more than the tolerance is an error; when
-    /// false it is a warning and the arc is kept as written.
+    /// An arc whose end is off its circle by more than the tolerance is an error (the
+    /// default: LinuxCNC, Grbl and RepRapFirmware refuse such an arc and stop the job
+    /// there); when false it is a warning and the arc is kept as written (an opt-in for
+    /// Mach3-style controllers that cut it anyway).
     pub strict_arcs: bool,
     /// Longest line accepted, bytes; a longer line is an error and is skipped.
     pub max_line_len: usize,
@@ -46,7 +48,7 @@ impl Default for Options {
         Options {
             dwell_p_milliseconds: true,
             arc_tolerance: 0.01,
-            strict_arcs: false,
+            strict_arcs: true,
             max_line_len: 1 << 20,
         }
     }

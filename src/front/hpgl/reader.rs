@@ -6,7 +6,10 @@
 //! breaks and blanks between commands and between parameters are allowed, so real
 //! files with and without terminators, one command per line or everything on one
 //! line, all read the same. `LB` (label) text runs to the label terminator (ETX,
-//! byte 3, or the one `DT` sets) and may hold any byte, `;` included.
+//! byte 3, or the one `DT` sets) and may hold any byte, `;` included; a label the input
+//! ends inside is an error (`hpgl::open-label`), not a plot that silently stops there.
+//! A UTF-8 byte-order mark at the start is skipped; one anywhere else is an error that
+//! says BOM. Parameters beyond [`crate::num::range::MAX_MAGNITUDE`] are errors.
 //!
 //! Memory is bounded: a command longer than the limit is an error and its bytes are
 //! skipped, not buffered.
@@ -158,6 +161,8 @@ pub(super) struct Reader<R> {
     in_garbage: bool,
     /// I/O error already reported.
     failed: bool,
+    /// The last `LB` ran to the end of the input without its terminator.
+    open_label: bool,
 }
 
 impl<R: BufRead> Reader<R> {
@@ -172,6 +177,7 @@ impl<R: BufRead> Reader<R> {
             label_end: 3,
             in_garbage: false,
             failed: false,
+            open_label: false,
         }
     }
 
@@ -184,6 +190,17 @@ impl<R: BufRead> Reader<R> {
         loop {
             match self.inner.fill_buf() {
                 Ok(b) => return Ok(b.first().copied()),
+                Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// The input goes on with a UTF-8 byte-order mark (all of it in the buffer).
+    fn at_bom(&mut self) -> io::Result<bool> {
+        loop {
+            match self.inner.fill_buf() {
+                Ok(b) => return Ok(b.starts_with(&BOM)),
                 Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
                 Err(e) => return Err(e),
             }
@@ -229,6 +246,18 @@ impl<R: BufRead> Reader<R> {
         if self.failed {
             return Some(None);
         }
+        // A byte-order mark, which Windows editors put at the start of a text file, is
+        // not part of the plot.
+        if self.offset == 0 {
+            match self.at_bom() {
+                Ok(true) => {
+                    self.inner.consume(BOM.len());
+                    self.offset += BOM.len() as u64;
+                }
+                Ok(false) => {}
+                Err(e) => return Some(self.io_error(e, diags)),
+            }
+        }
         // Between commands: blanks, line breaks, stray terminators.
         let first = loop {
             let b = match self.peek() {
@@ -241,6 +270,15 @@ impl<R: BufRead> Reader<R> {
                 break b;
             }
             let (line, column) = (self.line, self.column);
+            if b == BOM[0] && matches!(self.at_bom(), Ok(true)) {
+                // Files joined together carry a mark each: one error for the whole mark.
+                self.inner.consume(BOM.len());
+                self.offset += BOM.len() as u64;
+                self.column += 1;
+                self.in_garbage = false;
+                diags.push(bom_inside(line, column));
+                continue;
+            }
             self.bump(b);
             if matches!(b, b' ' | b'\t' | b'\r' | b'\n' | b';' | 0 | 0x0C | 0x1A) {
                 // NUL padding, form feed and Ctrl-Z (DOS end of file) appear in real
@@ -311,6 +349,10 @@ impl<R: BufRead> Reader<R> {
         diags: &mut Vec<Diagnostic>,
     ) -> Option<Option<Command>> {
         cmd.span.len = (self.offset - cmd.span.offset).min(u32::MAX as u64) as u32;
+        if std::mem::take(&mut self.open_label) {
+            diags.push(self.unterminated_label(&cmd));
+            return None;
+        }
         if too_long {
             diags.push(
                 cmd.diag_at(
@@ -347,6 +389,31 @@ impl<R: BufRead> Reader<R> {
         Some(Some(cmd))
     }
 
+    /// The error for an `LB` whose terminator never comes.
+    fn unterminated_label(&self, cmd: &Command) -> Diagnostic {
+        let terminator = if self.label_end == 3 {
+            "ETX (byte 0x03)".to_string()
+        } else if self.label_end.is_ascii_graphic() {
+            format!("`{}` (set by DT)", self.label_end as char)
+        } else {
+            format!("byte 0x{:02X} (set by DT)", self.label_end)
+        };
+        cmd.diag_at(
+            Diagnostic::error(
+                "hpgl::open-label",
+                format!(
+                    "this label is not terminated: no {terminator} before the end of the input, so it would swallow every command after it"
+                ),
+            ),
+            0,
+            2,
+        )
+        .with_label("label starts here")
+        .with_help(format!(
+            "end the label text with {terminator}; if the file was edited as text, the terminator may have been lost"
+        ))
+    }
+
     /// Parameters: up to `;` (consumed), the next letter or the end. Returns whether
     /// the command was too long (its bytes then skipped).
     fn read_params(&mut self, cmd: &mut Command) -> io::Result<bool> {
@@ -379,13 +446,14 @@ impl<R: BufRead> Reader<R> {
         Ok(too_long)
     }
 
-    /// `LB` text up to the label terminator.
+    /// `LB` text up to the label terminator. A label the input ends inside is an
+    /// error: its text would hold the rest of the file, every command after it lost.
     fn read_label(&mut self, cmd: &mut Command) -> io::Result<bool> {
         let mut too_long = false;
         while let Some(b) = self.peek()? {
             self.bump(b);
             if b == self.label_end {
-                break;
+                return Ok(too_long);
             }
             if cmd.text.len() >= self.max_len {
                 too_long = true;
@@ -393,6 +461,7 @@ impl<R: BufRead> Reader<R> {
                 cmd.text.push(b);
             }
         }
+        self.open_label = true;
         Ok(too_long)
     }
 
@@ -426,6 +495,26 @@ impl<R: BufRead> Reader<R> {
         }
         Ok(false)
     }
+}
+
+/// The UTF-8 byte-order mark.
+const BOM: [u8; 3] = [0xEF, 0xBB, 0xBF];
+
+/// The error for a byte-order mark after the start of the input.
+fn bom_inside(line: u32, column: u32) -> Diagnostic {
+    let mut d = Diagnostic::error(
+        "hpgl::unexpected",
+        "a UTF-8 byte-order mark (BOM) where a command (two letters) should start",
+    )
+    .with_help("a BOM belongs only at the very start of a file (it is skipped there); remove it, as when files were joined together");
+    d.location = Some(Box::new(Location {
+        line,
+        column,
+        len: 1,
+        source_line: "\u{fffd}".to_string(),
+        cut: column - 1,
+    }));
+    d
 }
 
 /// The error for a byte `b` at `line`, `column` where a command should start.
@@ -510,7 +599,8 @@ fn parse_params(
         while end < n && !(text[end] == b',' || text[end].is_ascii_whitespace()) {
             end += 1;
         }
-        let shown = String::from_utf8_lossy(&text[start..end]);
+        let token = String::from_utf8_lossy(&text[start..end]);
+        let shown = crate::num::range::shown(&token);
         let v = match crate::num::scan_decimal(text, start) {
             Some((v, e)) if e == end => v,
             _ => {
@@ -522,12 +612,12 @@ fn parse_params(
                 ));
             }
         };
-        if !v.is_finite() {
+        if !crate::num::range::in_range(v) {
             return Err((
                 start,
                 end,
                 format!("`{shown}` is too large"),
-                "plotter coordinates are at most about 1e9",
+                "parameters are at most 1e12 in size (plotter coordinates are at most about 1e9)",
             ));
         }
         out.push(Param {

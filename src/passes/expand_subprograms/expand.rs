@@ -5,6 +5,7 @@ use std::collections::{HashMap, HashSet};
 
 use super::calls::body_call;
 use super::lower::{BodyLowerer, Lowering};
+use super::size::Sizes;
 use super::{Call, Def, Key, Options, Reach};
 use crate::diag::Diagnostic;
 use crate::ir::{Block, Modal};
@@ -77,6 +78,8 @@ pub(super) struct Expander<'a> {
     pub diags: Vec<Diagnostic>,
     /// `max_blocks` was exceeded: stop producing.
     failed: bool,
+    /// The blocks one run of each program makes, counted before expanding.
+    sizes: Sizes,
 }
 
 impl<'a> Expander<'a> {
@@ -96,6 +99,7 @@ impl<'a> Expander<'a> {
             produced: 0,
             diags: Vec::new(),
             failed: false,
+            sizes: Sizes::new(),
         }
     }
 
@@ -173,6 +177,7 @@ impl<'a> Expander<'a> {
         out: &mut Vec<Block>,
     ) -> Result<Modal, ()> {
         let def = self.callable(key, depth, stack, site)?;
+        self.fits(key, count, site)?;
         self.used.insert(key.clone());
         stack.push(key.clone());
         let lowering = self.lowering;
@@ -198,6 +203,33 @@ impl<'a> Expander<'a> {
         }
         stack.pop();
         Ok(low.state())
+    }
+
+    /// `Err` after reporting it when `count` runs of `key` would take the expansion over
+    /// `max_blocks`: counted before a block is made.
+    fn fits(&mut self, key: &Key, count: u32, site: &Site) -> Result<(), ()> {
+        let one = self
+            .sizes
+            .of(key, self.defs, self.options, self.lowering, &mut Vec::new());
+        let expected = one.saturating_mul(u64::from(count));
+        if self.produced.saturating_add(expected) <= self.options.max_blocks {
+            return Ok(());
+        }
+        // Called, though refused: not "never called".
+        self.used.extend(self.sizes.counted().cloned());
+        self.report(site.point(
+            Diagnostic::error(
+                "subprograms::size",
+                format!(
+                    "this call would produce about {expected} blocks ({count} x {one} of {}, calls inside counted), more than max_blocks = {}",
+                    key.name(),
+                    self.options.max_blocks
+                ),
+            )
+            .with_label("too many blocks")
+            .with_help("check the repeat counts (L) here and in the subprograms it calls; raise the pass option max_blocks if the program is meant to be this long"),
+        ));
+        Err(())
     }
 
     /// The definition `key` calls, or `Err` after reporting why it cannot be expanded

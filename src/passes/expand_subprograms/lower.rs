@@ -31,7 +31,7 @@ impl Default for Input {
         Input {
             dwell_p_milliseconds: true,
             arc_tolerance: 0.01,
-            strict_arcs: false,
+            strict_arcs: true,
             max_line_len: 1 << 20,
         }
     }

@@ -22,7 +22,10 @@
 //! - `subprograms::depth`: calls nest deeper than `max_depth` (default 10).
 //! - `subprograms::count`: `L` is not a whole number from 1 to `max_count` (default
 //!   9999, Fanuc's range). `L0` is an error too (LinuxCNC skips the call; remove the line).
-//! - `subprograms::size`: the expansion would produce more than `max_blocks` blocks.
+//! - `subprograms::size`: the expansion would produce more than `max_blocks` blocks. The
+//!   blocks a call makes (its body's blocks times its repeat count, nested calls
+//!   counted the same way) are counted before it is expanded, so a nest of large
+//!   repeat counts is refused at its call line without being built.
 //! - `subprograms::modes`: a subprogram called from the main program leaves units,
 //!   distance mode, extruder mode or feed mode different from those it was called in. The
 //!   frontend read the lines after the call in the old modes, so their meaning would be
@@ -37,6 +40,10 @@
 //! `M98 P[#1]`) or inside o-word control flow (`o1 if ...`) cannot be expanded without
 //! evaluating the program: it passes through unchanged with the warning
 //! `subprograms::not-expanded`, and the definitions it may reach stay in the output.
+//! The G-code frontend, which cannot know that this pass follows it, warns that o-word
+//! calls and subroutines and Fanuc subprograms pass through unchanged
+//! (`gcode::control-flow`, `gcode::subprogram`); the pass takes those warnings back on
+//! the lines it handles, so only what it really leaves in the output is warned about.
 //! `M99` in the main program (an endless loop on the controller) passes through with
 //! `subprograms::main-m99`. An unused definition is left out with `subprograms::unused`.
 //!
@@ -77,6 +84,7 @@ mod defs;
 mod expand;
 pub mod lower;
 mod main;
+mod size;
 
 use serde::{Deserialize, Serialize};
 
@@ -233,8 +241,33 @@ impl ExpandSubprograms {
     }
 }
 
+/// The frontend's warnings that a subprogram, an o-word call or definition passes through
+/// unchanged: true without this pass, and taken back by it on the lines it handles.
+const FRONTEND_NOTICES: [&str; 2] = ["gcode::subprogram", "gcode::control-flow"];
+
+/// Takes back the frontend's warnings ([`FRONTEND_NOTICES`]) on the lines of `blocks` this
+/// pass handles (calls, definitions): the frontend cannot know that the pass follows.
+/// What the pass cannot expand it reports itself (`subprograms::not-expanded`).
+fn take_back_notices(blocks: &[Block], diags: &mut Vec<Diagnostic>) {
+    if !diags.iter().any(|d| FRONTEND_NOTICES.contains(&d.code)) {
+        return;
+    }
+    let handled: std::collections::HashSet<u32> = blocks
+        .iter()
+        .filter(|b| subprogram_related(b))
+        .map(|b| b.span.line)
+        .collect();
+    diags.retain(|d| {
+        !(FRONTEND_NOTICES.contains(&d.code)
+            && d.location
+                .as_ref()
+                .is_some_and(|l| handled.contains(&l.line)))
+    });
+}
+
 impl Pass for ExpandSubprograms {
     fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
+        take_back_notices(blocks, out.diags);
         for block in blocks.drain(..) {
             self.block(block, out);
         }

@@ -9,7 +9,7 @@ use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Command, Comment, CommentStyle, FeedMode, Joints, MotionKind,
     OffsetCode, Span, Target, Text,
 };
-use crate::machine::FeedRule;
+use crate::machine::{FeedRule, RapidRule};
 use crate::motion::{self, Segment, Timed};
 use crate::num::print::remember_printed;
 use crate::num::print::{printed, write_fixed};
@@ -236,6 +236,17 @@ impl ExtrudeRate {
                 }
                 self.queue.push_other(pass(block));
             }
+            // The screw must not run on in a paused or finished machine: every block
+            // before the stop is timed and put out, then the screw stops, then the stop.
+            BlockKind::Command(c) if c.stops_machine() => {
+                self.queue.finish();
+                self.drain(out);
+                if self.held.is_some_and(|h| h > 0.0) {
+                    self.set_rate(0.0, block.span, out);
+                }
+                self.pos.forget(c.clobbers);
+                self.queue.push_stop(0.0, pass(block));
+            }
             BlockKind::Command(c) if !c.clobbers.is_empty() => {
                 self.pos.forget(c.clobbers);
                 self.queue.push_stop(0.0, pass(block));
@@ -311,7 +322,9 @@ impl ExtrudeRate {
     fn e_only(&mut self, mut block: Block, de: f64, material: f64, rate: f64, rapid: bool) {
         let comments = std::mem::take(&mut block.comments);
         if material > 0.0 {
-            let mut seconds = if rate > 0.0 && !rapid {
+            // A rapid runs at the modal F on an FDM firmware, else at the rapid speed.
+            let at_feed = !rapid || self.model.rapid == RapidRule::ModalFeed;
+            let mut seconds = if rate > 0.0 && at_feed {
                 de / (rate / 60.0).max(self.model.min_speed)
             } else {
                 de / self.model.rapid_speed

@@ -46,7 +46,7 @@ impl OrderPaths {
             origin: xy(&start),
             finish: fixed_end.as_ref().map(xy),
         };
-        let order = problem.solve(&self.opt);
+        let (order, _work) = problem.solve(&self.opt);
         let planned = problem.cost(&order);
         self.groups += seg.groups.len();
         self.before += seg.travel;

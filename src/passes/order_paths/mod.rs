@@ -93,6 +93,7 @@ use nalgebra::Point2;
 use serde::{Deserialize, Serialize};
 
 mod emit;
+mod nearest;
 mod tour;
 
 use emit::position_before;

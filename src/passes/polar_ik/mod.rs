@@ -319,12 +319,13 @@ impl PolarIk {
         self.map_axes(clobbers)
     }
 
-    /// Warns when `p` is outside the arm's reach.
+    /// An error when `p` is outside the arm's reach: the machine cannot go there (the
+    /// arm would hit its end stop), as a 5-axis move past a rotary's limit cannot.
     fn check_reach(&self, p: &PolarPoint, span: Span, out: &mut Output<'_>) {
         let eps = 1e-9;
         if p.r > self.polar.r_max + eps || p.r < self.polar.r_min() - eps {
             out.diag(
-                Diagnostic::warning(
+                Diagnostic::error(
                     "polar-ik::reach",
                     format!(
                         "r = {:.3} mm is outside the arm's range {:.3}..{:.3}",
@@ -334,6 +335,11 @@ impl PolarIk {
                     ),
                 )
                 .at_span(span)
+                .with_label("out of the arm's reach")
+                .with_help(
+                    "move the part towards the table's centre (polar-ik `center` is the bed \
+                     point over the table's axis), or check [polar] r_max",
+                )
                 // How far past the range, for naming the worst of many.
                 .with_magnitude((p.r - self.polar.r_max).max(self.polar.r_min() - p.r)),
             );

@@ -16,14 +16,17 @@ impl<'a> Args<'a> {
         &self.stmt.code[a.start..a.end]
     }
 
-    /// The argument as a number, or an error pointing at it.
+    /// The argument as a number, or an error pointing at it: a number beyond
+    /// [`crate::num::range::MAX_MAGNITUDE`] is refused here, once, rather than giving an
+    /// error on every move downstream.
     pub(super) fn number(&self, a: &Arg) -> Result<f64, Diagnostic> {
         let text = self.text(a);
+        let shown = crate::num::range::shown(text);
         if a.kind != ArgKind::Number {
             return Err(self.stmt.locate(
                 Diagnostic::error(
                     "cl::bad-number",
-                    format!("expected a number, found `{text}`"),
+                    format!("expected a number, found `{shown}`"),
                 )
                 .with_label("not a number")
                 .with_help("write a decimal number such as `12.5`, `-.5` or `1.E-3`"),
@@ -32,11 +35,14 @@ impl<'a> Args<'a> {
             ));
         }
         match crate::num::parse_decimal(text) {
-            Some(v) if v.is_finite() => Ok(v),
+            Some(v) if crate::num::range::in_range(v) => Ok(v),
             _ => Err(self.stmt.locate(
-                Diagnostic::error("cl::bad-number", format!("`{text}` is out of range"))
+                Diagnostic::error("cl::bad-number", format!("`{shown}` is out of range"))
                     .with_label("too large")
-                    .with_help("CL values must be finite numbers"),
+                    .with_help(format!(
+                        "CL values must be finite and at most {:e} in size; check the number's exponent and digits",
+                        crate::num::range::MAX_MAGNITUDE
+                    )),
                 a.start,
                 a.end,
             )),

@@ -51,9 +51,12 @@ impl Lowerer {
                 "PERREV" => (self.scale, FeedMode::PerRevolution),
                 _ => {
                     return Err(a.stmt.locate(
-                        Diagnostic::error("cl::feed-unit", format!("unknown feed unit `{w}`"))
-                            .with_label("not a feed unit")
-                            .with_help("use MMPM, IPM, MMPR or IPR"),
+                        Diagnostic::error(
+                            "cl::feed-unit",
+                            format!("unknown feed unit `{}`", crate::num::range::shown(&w)),
+                        )
+                        .with_label("not a feed unit")
+                        .with_help("use MMPM, IPM, MMPR or IPR"),
                         x.start,
                         x.end,
                     ));
@@ -151,9 +154,12 @@ impl Lowerer {
                 }
                 w => {
                     return Err(stmt.locate(
-                        Diagnostic::error("cl::bad-value", format!("unknown SPINDL word `{w}`"))
-                            .with_label("not understood")
-                            .with_help("write SPINDL/rpm,CLW (or CCLW), SPINDL/ON or SPINDL/OFF"),
+                        Diagnostic::error(
+                            "cl::bad-value",
+                            format!("unknown SPINDL word `{}`", crate::num::range::shown(w)),
+                        )
+                        .with_label("not understood")
+                        .with_help("write SPINDL/rpm,CLW (or CCLW), SPINDL/ON or SPINDL/OFF"),
                         x.start,
                         x.end,
                     ));

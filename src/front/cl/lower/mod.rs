@@ -8,6 +8,7 @@
 
 mod args;
 mod command;
+mod frame;
 mod point;
 mod triplet;
 
@@ -18,7 +19,7 @@ use super::motion::{Circle, MM_PER_INCH};
 use super::options::{Options, Units};
 use super::read::{self, major_words, syntax_error};
 use super::source::{Probe, Statement};
-use super::{arc, cycle};
+use super::{arc, cycle, spline};
 use crate::diag::Diagnostic;
 use crate::ir::{
     AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Feed, FeedMode, Span, Text,
@@ -32,7 +33,6 @@ use triplet::Triplet;
 const INFORMATIONAL: &[&str] = &[
     "TOOL PATH",
     "TLDATA",
-    "MSYS",
     "PAINT",
     "END-OF-PATH",
     "CUTTER",
@@ -96,6 +96,13 @@ pub(super) struct Lowerer {
     major: String,
     /// Triplet format state, when the input is in it.
     triplet: Option<Triplet>,
+    /// The applied NX `MSYS` (`msys = "apply"`).
+    frame: Option<frame::Frame>,
+    warned_msys: bool,
+    /// The records of a NURBS being read.
+    nurbs: Option<spline::Pending>,
+    /// A NURBS being cut into pieces.
+    spline: Option<spline::Run>,
 }
 
 fn comment(text: impl Into<String>) -> Comment {
@@ -168,6 +175,10 @@ impl Lowerer {
             args: Vec::with_capacity(16),
             major: String::new(),
             triplet: None,
+            frame: None,
+            warned_msys: false,
+            nurbs: None,
+            spline: None,
         }
     }
 
@@ -208,13 +219,20 @@ impl Lowerer {
         self.triplet.is_some()
     }
 
-    /// Whether an arc is being cut into pieces.
+    /// Whether an arc or a spline is being cut into pieces.
     pub(super) fn expanding(&self) -> bool {
-        self.arc.is_some()
+        self.arc.is_some() || self.spline.is_some()
     }
 
-    /// Appends up to `max` (at least one) pieces of the arc being cut.
+    /// Appends up to `max` (at least one) pieces of the arc or spline being cut.
     pub(super) fn expand(&mut self, out: &mut Vec<Block>, max: usize) {
+        if let Some(run) = &mut self.spline {
+            run.emit(out, max.max(1));
+            if run.done() {
+                self.spline = None;
+            }
+            return;
+        }
         if let Some(run) = &mut self.arc {
             run.emit(out, max.max(1));
             if run.done() {
@@ -223,8 +241,10 @@ impl Lowerer {
         }
     }
 
-    /// At the end of the input.
+    /// At the end of the input: a spline still being read is planned (its pieces are
+    /// handed out by [`Lowerer::expand`]).
     pub(super) fn finish(&mut self, diags: &mut Vec<Diagnostic>) {
+        self.end_spline(diags);
         if let Some(c) = self.circle.take() {
             diags.push(c.unused);
         }
@@ -427,9 +447,14 @@ impl Lowerer {
             "CYCLE" => self.cycle(a),
             "CSYS" => {
                 self.pass_through(stmt, out);
-                self.csys(a, diags);
+                self.csys(a, out, diags);
                 Ok(())
             }
+            "MSYS" => {
+                self.pass_through(stmt, out);
+                self.msys(a, out, diags)
+            }
+            "NURBS" | "KNOT" | "CNTRL" => self.nurbs_record(major, a),
             "CUTCOM" => {
                 self.pass_through(stmt, out);
                 self.cutcom(a, diags);
@@ -483,6 +508,10 @@ fn known_major(major: &str) -> bool {
             | "OPSTOP"
             | "CYCLE"
             | "CSYS"
+            | "MSYS"
+            | "NURBS"
+            | "KNOT"
+            | "CNTRL"
             | "CUTCOM"
     ) || INFORMATIONAL.contains(&major)
 }
@@ -491,7 +520,7 @@ fn unknown(stmt: &Statement, major: &str, start: usize, end: usize) -> Diagnosti
     let shown = if major.is_empty() {
         stmt.code.trim().chars().take(20).collect::<String>()
     } else {
-        major.to_string()
+        crate::num::range::shown(major).into_owned()
     };
     stmt.locate(
         Diagnostic::warning(

@@ -72,10 +72,10 @@ impl Lowerer {
             if a.list.len() == 1 {
                 pos + axis.into_inner() * (v[0] * self.scale)
             } else {
-                pos + Vector3::new(v[0], v[1], v[2]) * self.scale
+                pos + self.dir_to_part(Vector3::new(v[0], v[1], v[2]) * self.scale)
             }
         } else {
-            Point3::new(v[0], v[1], v[2]) * self.scale
+            self.to_part(Point3::new(v[0], v[1], v[2]) * self.scale)
         };
         if !tip.iter().all(|c| c.is_finite()) {
             return Err(a.error_all(
@@ -104,7 +104,7 @@ impl Lowerer {
         diags: &mut Vec<Diagnostic>,
     ) -> Result<Unit<Vector3<f64>>, Diagnostic> {
         let (s, e) = (a.list[3].start, a.list[5].end);
-        let axis = unit(Vector3::new(v[3], v[4], v[5])).ok_or_else(|| {
+        let axis = unit(self.dir_to_part(Vector3::new(v[3], v[4], v[5]))).ok_or_else(|| {
             a.stmt.locate(
                 Diagnostic::error("cl::zero-axis", "the tool axis i,j,k is a zero vector")
                     .with_label("zero vector")
@@ -217,7 +217,7 @@ impl Lowerer {
         let (Some(c), Some((nv, ns, ne))) = (centre, normal) else {
             return Ok(());
         };
-        let mut normal = unit(nv).ok_or_else(|| {
+        let mut normal = unit(self.dir_to_part(nv)).ok_or_else(|| {
             stmt.locate(
                 Diagnostic::error(
                     "cl::zero-axis",
@@ -246,7 +246,7 @@ impl Lowerer {
                 radius_at.1,
             ));
         }
-        let centre = Point3::from(c * self.scale);
+        let centre = self.to_part(Point3::from(c * self.scale));
         let radius = radius.map(|r| r * self.scale);
         if !centre.iter().all(|v| v.is_finite()) || radius.is_some_and(|r| !r.is_finite()) {
             return Err(a.error_all(Diagnostic::error(
@@ -290,7 +290,7 @@ impl Lowerer {
         }
         a.arity("TLAXIS", &[3], "i,j,k")?;
         let v = a.numbers()?;
-        self.axis = unit(Vector3::new(v[0], v[1], v[2])).ok_or_else(|| {
+        self.axis = unit(self.dir_to_part(Vector3::new(v[0], v[1], v[2]))).ok_or_else(|| {
             a.error_all(
                 Diagnostic::error("cl::zero-axis", "the tool axis i,j,k is a zero vector")
                     .with_label("zero vector")
@@ -328,8 +328,9 @@ impl Lowerer {
     /// A CSYS matrix (three rows of rotation and translation) passes through; its Z
     /// column becomes the tool axis (APT++ writes 3-value GOTOs only under a CSYS whose
     /// Z column is +Z, and 6-value ones with the Z column as their axis otherwise). A
-    /// CSYS that is not the identity gets a warning: it is not applied to the points.
-    pub(super) fn csys(&mut self, a: &Args<'_>, diags: &mut Vec<Diagnostic>) {
+    /// CSYS that is not the identity gets a warning: it is not applied to the points; one
+    /// that rotates gets a note for the passes on its block (the last in `out`).
+    pub(super) fn csys(&mut self, a: &Args<'_>, out: &mut [Block], diags: &mut Vec<Diagnostic>) {
         let Ok(v) = a.numbers() else {
             return;
         };
@@ -341,6 +342,10 @@ impl Lowerer {
         }
         if v.len() == 12 && v.iter().zip(identity).all(|(a, b)| (a - b).abs() < 1e-9) {
             return;
+        }
+        let rotation = [0, 1, 2, 4, 5, 6, 8, 9, 10];
+        if v.len() != 12 || rotation.iter().any(|&i| (v[i] - identity[i]).abs() > 1e-6) {
+            Self::note_frame(out);
         }
         diags.push(
             a.error_all(
@@ -445,7 +450,10 @@ fn circle_words(a: &Args<'_>, major: &str) -> Result<Written, Diagnostic> {
                     return Err(a.stmt.locate(
                         Diagnostic::error(
                             "cl::bad-number",
-                            format!("expected a number, found `{}`", a.text(x)),
+                            format!(
+                                "expected a number, found `{}`",
+                                crate::num::range::shown(a.text(x))
+                            ),
                         )
                         .with_label("not a number")
                         .with_help(format!(

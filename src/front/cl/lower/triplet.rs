@@ -103,7 +103,10 @@ impl Lowerer {
             Err(stmt.locate_all(
                 Diagnostic::error(
                     "cl::triplet",
-                    format!("expected a motion code such as `7f` or `80`, found `{code}`"),
+                    format!(
+                        "expected a motion code such as `7f` or `80`, found `{}`",
+                        crate::num::range::shown(code)
+                    ),
                 )
                 .with_label("not a motion code")
                 .with_help("the third line of a triplet is the hexadecimal motion code (7f rapid)"),
@@ -127,7 +130,7 @@ fn numbers(stmt: &Statement) -> Result<Vector3<f64>, Diagnostic> {
         }
         match crate::num::parse_decimal(field) {
             Some(x)
-                if x.is_finite()
+                if crate::num::range::in_range(x)
                     && field
                         .bytes()
                         .all(|b| b.is_ascii_digit() || b"+-.eE".contains(&b)) =>
@@ -138,10 +141,16 @@ fn numbers(stmt: &Statement) -> Result<Vector3<f64>, Diagnostic> {
                 return Err(stmt.locate(
                     Diagnostic::error(
                         "cl::bad-number",
-                        format!("expected a number, found `{field}`"),
+                        format!(
+                            "expected a number, found `{}`",
+                            crate::num::range::shown(field)
+                        ),
                     )
-                    .with_label("not a number")
-                    .with_help("a triplet's first two lines hold three numbers each"),
+                    .with_label("not a number or out of range")
+                    .with_help(format!(
+                        "a triplet's first two lines hold three numbers each, at most {:e} in size",
+                        crate::num::range::MAX_MAGNITUDE
+                    )),
                     start,
                     start + field.len(),
                 ));

@@ -25,6 +25,20 @@ fn arc_err(line_no: u32, text: &str, msg: String, help: &str) -> Diagnostic {
         .with_help(help.to_string())
 }
 
+/// The error for an arc off its circle: the controller would stop the job at it.
+fn off_circle_err(line_no: u32, text: &str, msg: String, help: &str) -> Diagnostic {
+    arc_err(
+        line_no,
+        text,
+        msg,
+        &format!(
+            "{help}; LinuxCNC, Grbl and RepRapFirmware refuse such an arc and stop the job \
+             there (set gcode_input.strict_arcs = false to keep it as written, for a \
+             controller that cuts it anyway)"
+        ),
+    )
+}
+
 /// An arc's start and end in its plane, and the block it is written on.
 struct Chord<'t> {
     start: [f64; 2],
@@ -183,8 +197,8 @@ impl Lowerer {
     }
 
     /// A centre given by offsets must be as far from the end as from the start, within
-    /// the arc tolerance (or 0.1 % of the radius); outside it the arc is kept as written
-    /// with a warning, or refused with `strict_arcs`.
+    /// the arc tolerance (or 0.1 % of the radius); outside it the arc is refused, or with
+    /// `strict_arcs = false` kept as written with a warning.
     fn check_centre(
         &self,
         chord: &Chord<'_>,
@@ -201,7 +215,7 @@ impl Lowerer {
                 "arc radius does not fit its end points: {r0:.4} mm at the start, {r1:.4} mm at the end"
             );
             if self.options.strict_arcs {
-                diags.push(arc_err(
+                diags.push(off_circle_err(
                     line_no,
                     text,
                     msg,
@@ -215,7 +229,7 @@ impl Lowerer {
                     .with_label("kept as written")
                     .with_help(
                         "the centre is kept where the offsets put it; controllers may reject \
-                         the arc or move in a spiral (set strict_arcs to make this an error)",
+                         the arc or move in a spiral (strict_arcs = false keeps it)",
                     ),
             );
         }
@@ -233,8 +247,8 @@ impl Lowerer {
 
     /// The centre of an R arc: right of the chord for G2 with R > 0, left for G3, and
     /// the other side for R < 0 (the arc over half a turn). A radius too short for the
-    /// chord makes a half circle, as Mach3 does, with a warning (an error with
-    /// `strict_arcs`).
+    /// chord is an error, or with `strict_arcs = false` a half circle, as Mach3 makes
+    /// it, with a warning.
     fn centre_from_radius(
         &self,
         chord: &Chord<'_>,
@@ -273,7 +287,7 @@ impl Lowerer {
             );
             let help = "the radius must be at least half the distance between start and end";
             if self.options.strict_arcs {
-                diags.push(arc_err(line_no, text, msg, help));
+                diags.push(off_circle_err(line_no, text, msg, help));
                 return None;
             }
             diags.push(
@@ -282,7 +296,7 @@ impl Lowerer {
                     .with_label("made a half circle")
                     .with_help(format!(
                         "{help}; it is kept as a half circle through both points, as Mach3 \
-                         does (set strict_arcs to make this an error)"
+                         does (strict_arcs = false keeps it)"
                     )),
             );
         }

@@ -13,19 +13,21 @@ use crate::ir::{
     VerbatimReason,
 };
 
-/// A block's words sorted by letter: G and M codes, the first word of each other letter,
-/// and the words that pass through on a command.
-struct Sorted<'a> {
-    g: Small<(Code, Word<'a>)>,
-    m: Small<(Code, Word<'a>)>,
-    index: [u32; 26],
+/// A block's words sorted by letter: G and M codes, and the words that pass through on a
+/// command (the first word of each other letter is in the block's [`Slots`]).
+struct Sorted {
+    g: Small<(Code, WordAt)>,
+    m: Small<(Code, WordAt)>,
     /// Words of letters that are neither axes nor arc or command parameters (S, T, ...).
-    rest: Small<Word<'a>>,
+    rest: Small<WordAt>,
 }
+
+/// A word of the block, by its place in the block's words.
+type WordAt = u32;
 
 /// What a block's G and M codes ask for, beyond the modes they set.
 #[derive(Default)]
-struct Effects<'a> {
+struct Effects {
     /// A motion mode written in the block (G0-G3, or G80 ending a canned cycle).
     motion: Option<MotionMode>,
     /// A motion code the IR does not model (canned cycles, splines, probing).
@@ -39,7 +41,7 @@ struct Effects<'a> {
     /// The block's axis words are a command's parameters, not a move.
     axis_user: bool,
     /// G codes that pass through on a command.
-    other_g: Small<Word<'a>>,
+    other_g: Small<WordAt>,
     /// All G codes of the block.
     g_list: Small<Code>,
 }
@@ -52,12 +54,13 @@ struct Parts<'w, 'a> {
     bare: &'w [(usize, &'a str)],
     slots: Slots<'w, 'a>,
     named: AxisSet,
-    fx: Effects<'a>,
+    fx: Effects,
     m_list: Small<Code>,
     /// M codes that pass through (all but M82/M83, which the lowering resolves).
-    passthrough_m: Small<Word<'a>>,
-    /// The words of the command the block holds beside (or instead of) a move.
-    command_words: Small<Word<'a>>,
+    passthrough_m: Small<WordAt>,
+    /// The words of the command the block holds beside (or instead of) a move, in line
+    /// order.
+    command_words: Small<WordAt>,
     feed_written: bool,
 }
 
@@ -73,16 +76,17 @@ impl Lowerer {
         diags: &mut Vec<Diagnostic>,
     ) {
         let line_no = span.line;
-        let Some(Collected {
+        let mut collected = Collected::default();
+        if collect(text, line_no, &line, items, &mut collected, diags).is_none() {
+            return;
+        }
+        let Collected {
             words,
             bare,
             comments,
             percent,
-        }) = collect(text, line_no, &line, items, diags)
-        else {
-            return;
-        };
-        if percent {
+        } = &mut collected;
+        if *percent {
             if !words.is_empty() {
                 diags.push(
                     Diagnostic::error("gcode::percent", "`%` must stand alone on its line")
@@ -100,12 +104,28 @@ impl Lowerer {
             return;
         }
         if line.block_delete {
-            out.push(self.block_delete(text, span, &words, diags));
+            out.push(self.block_delete(text, span, words, diags));
             return;
         }
-        let Some(parts) = self.resolve(text, span, &words, &bare, diags) else {
-            return;
+        let mut parts = Parts {
+            text,
+            span,
+            words,
+            bare,
+            slots: Slots {
+                words,
+                index: [Slots::NONE; 26],
+            },
+            named: AxisSet::EMPTY,
+            fx: Effects::default(),
+            m_list: Small::new(),
+            passthrough_m: Small::new(),
+            command_words: Small::new(),
+            feed_written: false,
         };
+        if self.resolve(&mut parts, diags).is_none() {
+            return;
+        }
         let first = out.len();
         if self.lower_parts(&parts, out, diags).is_none() {
             return;
@@ -119,8 +139,8 @@ impl Lowerer {
             self.program_started = true;
         }
         // A line passed through as text keeps its comments in the text.
-        if !matches!(out[first].kind, BlockKind::Verbatim(_)) {
-            out[first].comments = comments;
+        if !comments.is_empty() && !matches!(out[first].kind, BlockKind::Verbatim(_)) {
+            out[first].comments = std::mem::take(comments);
         }
     }
 
@@ -154,68 +174,49 @@ impl Lowerer {
 
     /// Sorts a block's words, applies its modal settings and its feed, and gathers what
     /// its lowering needs; `None` once an error is reported.
-    fn resolve<'w, 'a>(
-        &mut self,
-        text: &'a str,
-        span: Span,
-        words: &'w [Word<'a>],
-        bare: &'w [(usize, &'a str)],
-        diags: &mut Vec<Diagnostic>,
-    ) -> Option<Parts<'w, 'a>> {
-        let line_no = span.line;
-        let sorted = sort_words(text, line_no, words, diags)?;
-        if let Some(d) = modal_conflict(text, line_no, &sorted.g) {
+    fn resolve(&mut self, p: &mut Parts<'_, '_>, diags: &mut Vec<Diagnostic>) -> Option<()> {
+        let (text, line_no) = (p.text, p.span.line);
+        let mut sorted = Sorted {
+            g: Small::new(),
+            m: Small::new(),
+            rest: Small::new(),
+        };
+        sort_words(text, line_no, p.words, &mut sorted, &mut p.slots, diags)?;
+        if let Some(d) = modal_conflict(text, line_no, p.words, &sorted.g) {
             diags.push(d);
             return None;
         }
-        let slots = Slots {
-            words,
-            index: sorted.index,
-        };
-        let named: AxisSet = Axis::ALL
+        p.named = Axis::ALL
             .into_iter()
-            .filter(|a| slots.has(a.letter()))
+            .filter(|a| p.slots.has(a.letter()))
             .collect();
-        let mut fx = self.apply_g_codes(&sorted.g);
-        self.apply_m_codes(&sorted.m, &mut fx);
-        if fx.unsupported {
+        self.apply_g_codes(&sorted.g, &mut p.fx);
+        self.apply_m_codes(&sorted.m, &mut p.fx);
+        if p.fx.unsupported {
             self.motion = MotionMode::Unsupported;
-        } else if let Some(m) = fx.motion {
+        } else if let Some(m) = p.fx.motion {
             self.motion = m;
         }
-        let m_list: Small<Code> = sorted.m.iter().map(|(c, _)| *c).collect();
+        p.m_list.extend(sorted.m.iter().map(|(c, _)| *c));
         // M82/M83 are resolved here; the backend puts its own extruder mode before E moves.
-        let passthrough_m: Small<Word<'_>> = sorted
-            .m
-            .iter()
-            .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
-            .map(|(_, w)| *w)
-            .collect();
-        let feed_written = self.apply_feed(text, line_no, &slots, &fx, diags)?;
-        let mut parts = Parts {
-            text,
-            span,
-            words,
-            bare,
-            slots,
-            named,
-            fx,
-            m_list,
-            passthrough_m,
-            command_words: Small::new(),
-            feed_written,
-        };
-        parts.command_words = command_words(&parts, &sorted.rest);
-        Some(parts)
+        p.passthrough_m.extend(
+            sorted
+                .m
+                .iter()
+                .filter(|(c, _)| !matches!(c, (82 | 83, 0)))
+                .map(|&(_, w)| w),
+        );
+        p.feed_written = self.apply_feed(text, line_no, &p.slots, &p.fx, diags)?;
+        p.command_words = command_words(p, &sorted.rest);
+        Some(())
     }
 
     /// Applies the block's G codes to the modal state, in RS274 execution order, and
     /// returns what else they ask for.
-    fn apply_g_codes<'a>(&mut self, g_codes: &[(Code, Word<'a>)]) -> Effects<'a> {
-        let mut fx = Effects::default();
-        for (code, w) in g_codes {
-            fx.g_list.push(*code);
-            match *code {
+    fn apply_g_codes(&mut self, g_codes: &[(Code, WordAt)], fx: &mut Effects) {
+        for &(code, w) in g_codes {
+            fx.g_list.push(code);
+            match code {
                 (0, 0) => fx.motion = Some(MotionMode::Rapid),
                 (1, 0) => fx.motion = Some(MotionMode::Linear),
                 (2, 0) => fx.motion = Some(MotionMode::Arc { clockwise: true }),
@@ -250,11 +251,11 @@ impl Lowerer {
                 }
                 c if g_group(c) == Some("motion") => {
                     fx.unsupported = true;
-                    fx.other_g.push(*w);
+                    fx.other_g.push(w);
                 }
                 c if g_uses_axes(c) => {
                     fx.axis_user = true;
-                    fx.other_g.push(*w);
+                    fx.other_g.push(w);
                 }
                 c => {
                     // A code the IR does not know may move or redefine coordinates
@@ -262,15 +263,14 @@ impl Lowerer {
                     if !g_known_modal(c) && fx.motion.is_none() {
                         fx.axis_user = true;
                     }
-                    fx.other_g.push(*w)
+                    fx.other_g.push(w)
                 }
             }
         }
-        fx
     }
 
     /// Applies the block's M codes to the modal state (M82/M83).
-    fn apply_m_codes(&mut self, m_codes: &[(Code, Word<'_>)], fx: &mut Effects<'_>) {
+    fn apply_m_codes(&mut self, m_codes: &[(Code, WordAt)], fx: &mut Effects) {
         for (code, _) in m_codes {
             match *code {
                 (82, 0) => self.relative_e = false,
@@ -291,7 +291,7 @@ impl Lowerer {
         text: &str,
         line_no: u32,
         slots: &Slots<'_, '_>,
-        fx: &Effects<'_>,
+        fx: &Effects,
         diags: &mut Vec<Diagnostic>,
     ) -> Option<bool> {
         let Some(f) = slots.get('F') else {
@@ -368,11 +368,12 @@ impl Lowerer {
     fn command_of(
         &mut self,
         p: &Parts<'_, '_>,
-        words: &[Word<'_>],
+        words: &[WordAt],
         named: AxisSet,
         with_axes: bool,
     ) -> Block {
-        self.command(p.span, words, &p.fx.g_list, &p.m_list, named, with_axes)
+        let words: Small<Word<'_>> = words.iter().map(|&at| p.words[at as usize]).collect();
+        self.command(p.span, &words, &p.fx.g_list, &p.m_list, named, with_axes)
     }
 
     /// G4: a dwell block, or the words as written for a dialect's dwell (`G4 F0.25`,
@@ -381,13 +382,9 @@ impl Lowerer {
         match self.dwell_seconds(&p.slots) {
             Some(seconds) => Block::new(p.span, BlockKind::Dwell { seconds }),
             None => {
-                let mut words: Small<Word<'_>> = p
-                    .words
-                    .iter()
-                    .filter(|w| w.letter != 'N')
-                    .copied()
+                let words: Small<WordAt> = (0..p.words.len() as WordAt)
+                    .filter(|&at| p.words[at as usize].letter != 'N')
                     .collect();
-                words.sort_by_key(|w| w.start);
                 self.command_of(p, &words, AxisSet::EMPTY, false)
             }
         }
@@ -396,10 +393,11 @@ impl Lowerer {
     /// A command whose axis words are its parameters (homing, probing, M201 X2500).
     fn axis_command(&mut self, p: &Parts<'_, '_>) -> Block {
         let mut words = p.command_words.clone();
-        words.extend(p.named.iter().filter_map(|a| p.slots.axis(a)));
+        words.extend(p.named.iter().filter_map(|a| p.slots.at(a.letter())));
         // A probe's or homing command's feed is its own (and stays modal).
-        words.extend(p.slots.get('F'));
-        words.sort_by_key(|w| w.start);
+        words.extend(p.slots.at('F'));
+        // Words sit in the block in line order.
+        words.sort_unstable();
         // Bare letters name axes too (`G28 X Z` homes X and Z).
         let bare_axes: AxisSet = p
             .bare
@@ -465,7 +463,11 @@ impl Lowerer {
             }
             mode => {
                 // Words other than the move's (M, T, S, unknown letters) ride along on its line.
-                let extra: Small<&str> = p.command_words.iter().map(|w| w.text).collect();
+                let extra: Small<&str> = p
+                    .command_words
+                    .iter()
+                    .map(|&at| p.words[at as usize].text)
+                    .collect();
                 let mv = Move {
                     mode,
                     slots: &p.slots,
@@ -482,18 +484,14 @@ impl Lowerer {
 
 /// Sorts a block's words by letter; `None` once an error is reported (a G or M word that
 /// is not a code, a letter given twice).
-fn sort_words<'a>(
+fn sort_words(
     text: &str,
     line_no: u32,
-    words: &[Word<'a>],
+    words: &[Word<'_>],
+    sorted: &mut Sorted,
+    slots: &mut Slots<'_, '_>,
     diags: &mut Vec<Diagnostic>,
-) -> Option<Sorted<'a>> {
-    let mut sorted = Sorted {
-        g: Small::new(),
-        m: Small::new(),
-        index: [Slots::NONE; 26],
-        rest: Small::new(),
-    };
+) -> Option<()> {
     for (wi, w) in words.iter().enumerate() {
         match w.letter {
             'G' | 'M' => {
@@ -508,14 +506,14 @@ fn sort_words<'a>(
                     return None;
                 };
                 if w.letter == 'G' {
-                    sorted.g.push((code, *w));
+                    sorted.g.push((code, wi as WordAt));
                 } else {
-                    sorted.m.push((code, *w));
+                    sorted.m.push((code, wi as WordAt));
                 }
             }
             'N' => {}
             l => {
-                let slot = &mut sorted.index[(l as u8 - b'A') as usize];
+                let slot = &mut slots.index[(l as u8 - b'A') as usize];
                 if *slot != Slots::NONE
                     && (Axis::from_letter(l).is_some()
                         || matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'S'))
@@ -537,23 +535,30 @@ fn sort_words<'a>(
                 }
                 if Axis::from_letter(l).is_none() && !matches!(l, 'F' | 'I' | 'J' | 'K' | 'R' | 'P')
                 {
-                    sorted.rest.push(*w);
+                    sorted.rest.push(wi as WordAt);
                 }
             }
         }
     }
-    Some(sorted)
+    Some(())
 }
 
 /// Two G codes of one modal group in a block.
-fn modal_conflict(text: &str, line_no: u32, g_codes: &[(Code, Word<'_>)]) -> Option<Diagnostic> {
-    for (i, (code, w)) in g_codes.iter().enumerate() {
-        if let Some(group) = g_group(*code)
+fn modal_conflict(
+    text: &str,
+    line_no: u32,
+    words: &[Word<'_>],
+    g_codes: &[(Code, WordAt)],
+) -> Option<Diagnostic> {
+    for (i, &(code, at)) in g_codes.iter().enumerate() {
+        let w = words[at as usize];
+        if let Some(group) = g_group(code)
             && group != "non-modal"
-            && let Some((_, first)) = g_codes[..i]
+            && let Some(&(_, first)) = g_codes[..i]
                 .iter()
                 .find(|(c, _)| g_group(*c) == Some(group))
         {
+            let first = words[first as usize];
             return Some(
                 Diagnostic::error(
                     "gcode::modal-conflict",
@@ -574,8 +579,8 @@ fn modal_conflict(text: &str, line_no: u32, g_codes: &[(Code, Word<'_>)]) -> Opt
 /// The words of the command a block holds, in line order: G and M codes the IR does not
 /// model and the other letters; with the command's own parameters (`G54.1 P2`,
 /// `M98 P1 L2`) unless the block is a move or a dwell.
-fn command_words<'a>(p: &Parts<'_, 'a>, rest: &[Word<'a>]) -> Small<Word<'a>> {
-    let mut v: Small<Word<'a>> = Small::new();
+fn command_words(p: &Parts<'_, '_>, rest: &[WordAt]) -> Small<WordAt> {
+    let mut v: Small<WordAt> = Small::new();
     v.extend(
         p.fx.other_g
             .iter()
@@ -588,11 +593,14 @@ fn command_words<'a>(p: &Parts<'_, 'a>, rest: &[Word<'a>]) -> Small<Word<'a>> {
         !p.fx.axis_user && p.fx.offset.is_none() && (!p.named.is_empty() || arc_here);
     if !p.fx.dwell && !becomes_motion {
         for l in ['I', 'J', 'K', 'R', 'P'] {
-            if let Some(w) = p.slots.get(l) {
-                v.push(w);
+            if let Some(at) = p.slots.at(l) {
+                v.push(at);
             }
         }
     }
-    v.sort_by_key(|w| w.start);
+    // Words sit in the block in line order.
+    if v.len() > 1 {
+        v.sort_unstable();
+    }
     v
 }

@@ -96,30 +96,24 @@ impl Lowerer {
         toks: &[Spanned<'_>],
         diags: &mut Vec<Diagnostic>,
     ) -> Option<Unplain> {
-        // A checksum ends the line; anything but a comment after it is an error.
-        let has_expression = toks
-            .iter()
-            .any(|t| matches!(t.1, Tok::Other(c) if "#[]{}=<>@^".contains(c)));
-        if !has_expression
-            && let Some(i) = toks.iter().position(|t| matches!(t.1, Tok::Checksum(_)))
-            && let Some(&(s, _, e)) = toks[i + 1..]
-                .iter()
-                .find(|t| !matches!(t.1, Tok::LineComment(_) | Tok::Comment(_)))
-        {
-            let (cs, ce) = (toks[i].0, toks[i].2);
-            diags.push(
-                Diagnostic::error("gcode::checksum-position", format!("checksum `{}` must end the line", &text[cs..ce]))
-                    .at_bytes(line_no, text, cs, ce)
-                    .with_label("followed by more words")
-                    .with_help(format!("move `{}` (and everything after it) before the checksum, or remove the checksum", &text[s..e])),
-            );
+        // Words, letters and comments alone are the plain block grammar.
+        if toks.iter().all(|t| {
+            matches!(
+                t.1,
+                Tok::Word(_) | Tok::Letter(_) | Tok::Comment(_) | Tok::LineComment(_)
+            )
+        }) {
+            return None;
+        }
+        if let Some(d) = misplaced_checksum(text, line_no, toks) {
+            diags.push(d);
             return Some(Unplain::Error);
         }
         let mut expression = None;
         let mut odd = None;
         for (i, &(s, tok, e)) in toks.iter().enumerate() {
             match tok {
-                Tok::Other(c) if "#[]{}=<>@^".contains(c) => {
+                Tok::Other(c) if is_expression_char(c) => {
                     expression.get_or_insert((s, e));
                 }
                 Tok::Other(_) | Tok::Ident(_) | Tok::Number(_) => {
@@ -415,4 +409,41 @@ pub(super) fn strip_line_number_and_comments(text: &str) -> String {
         }
     }
     out
+}
+
+/// A checksum ends the line: the error for anything but a comment after it (on a line
+/// without expressions, where `*` may be a product).
+fn misplaced_checksum(text: &str, line_no: u32, toks: &[Spanned<'_>]) -> Option<Diagnostic> {
+    let has_expression = toks
+        .iter()
+        .any(|t| matches!(t.1, Tok::Other(c) if is_expression_char(c)));
+    if has_expression {
+        return None;
+    }
+    let i = toks.iter().position(|t| matches!(t.1, Tok::Checksum(_)))?;
+    let &(s, _, e) = toks[i + 1..]
+        .iter()
+        .find(|t| !matches!(t.1, Tok::LineComment(_) | Tok::Comment(_)))?;
+    let (cs, ce) = (toks[i].0, toks[i].2);
+    Some(
+        Diagnostic::error(
+            "gcode::checksum-position",
+            format!("checksum `{}` must end the line", &text[cs..ce]),
+        )
+        .at_bytes(line_no, text, cs, ce)
+        .with_label("followed by more words")
+        .with_help(format!(
+            "move `{}` (and everything after it) before the checksum, or remove the checksum",
+            &text[s..e]
+        )),
+    )
+}
+
+/// Whether a character the lexer has no token for belongs to expression syntax:
+/// parameters (`#`), expressions (`[ ]`), RepRapFirmware `{ }` and comparisons.
+fn is_expression_char(c: &str) -> bool {
+    matches!(
+        c.as_bytes(),
+        [b'#' | b'[' | b']' | b'{' | b'}' | b'=' | b'<' | b'>' | b'@' | b'^']
+    )
 }

@@ -237,12 +237,6 @@ impl Lowerer {
         out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
-        // A byte-order mark at the start of the file is not part of the program.
-        let text = if span.line == 1 {
-            text.strip_prefix('\u{feff}').unwrap_or(text)
-        } else {
-            text
-        };
         if text.trim().is_empty() {
             return;
         }

@@ -38,33 +38,7 @@ impl Lowerer {
     ) -> Option<()> {
         let line_no = span.line;
         let named = mv.named;
-        // A relative move from an unknown position cannot be made absolute: it travels as
-        // written, in the modes it was written in, and its axes stay unknown.
-        if !mv.machine_frame
-            && let Some(a) = named
-                .iter()
-                .find(|&a| self.is_relative(a) && self.pos.get(a).is_none())
-        {
-            diags.push(
-                Diagnostic::warning(
-                    "gcode::relative-unknown",
-                    format!("relative move of {} from a position that is not known here", a.letter()),
-                )
-                .at_bytes(line_no, text, 0, text.len())
-                .with_label("passes through unchanged")
-                .with_help(format!(
-                    "it is copied as written (in G91); move {} to an absolute position first to have it resolved",
-                    a.letter()
-                )),
-            );
-            let b = self.verbatim(
-                text,
-                span,
-                VerbatimReason::Unevaluated,
-                named,
-                Placement::TopLevel { keeps_modes: true },
-            );
-            out.push(b);
+        if self.relative_from_unknown(text, span, mv, out, diags) {
             return Some(());
         }
         let target = self.target(mv.slots, named, mv.machine_frame);
@@ -84,7 +58,15 @@ impl Lowerer {
                     out.push(b);
                     return Some(());
                 }
-                MotionKind::Arc(self.arc(text, line_no, clockwise, mv.slots, &target, diags)?)
+                match self.arc(text, line_no, clockwise, mv.slots, &target, diags) {
+                    Some(arc) => MotionKind::Arc(arc),
+                    None => {
+                        // The block is refused, but its end point is as written: the
+                        // blocks after it start there, and report their own errors only.
+                        self.pos = target;
+                        return None;
+                    }
+                }
             }
             MotionMode::None | MotionMode::Unsupported => return None,
         };
@@ -121,6 +103,50 @@ impl Lowerer {
         }
         out.push(Block::new(span, BlockKind::Motion(motion)));
         Some(())
+    }
+
+    /// A relative move from an unknown position cannot be made absolute: it travels as
+    /// written, in the modes it was written in, and its axes stay unknown. `true` when
+    /// the move is one.
+    fn relative_from_unknown(
+        &mut self,
+        text: &str,
+        span: Span,
+        mv: &Move<'_, '_, '_>,
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) -> bool {
+        if mv.machine_frame {
+            return false;
+        }
+        let Some(a) = mv
+            .named
+            .iter()
+            .find(|&a| self.is_relative(a) && self.pos.get(a).is_none())
+        else {
+            return false;
+        };
+        diags.push(
+            Diagnostic::warning(
+                "gcode::relative-unknown",
+                format!("relative move of {} from a position that is not known here", a.letter()),
+            )
+            .at_bytes(span.line, text, 0, text.len())
+            .with_label("passes through unchanged")
+            .with_help(format!(
+                "it is copied as written (in G91); move {} to an absolute position first to have it resolved",
+                a.letter()
+            )),
+        );
+        let b = self.verbatim(
+            text,
+            span,
+            VerbatimReason::Unevaluated,
+            mv.named,
+            Placement::TopLevel { keeps_modes: true },
+        );
+        out.push(b);
+        true
     }
 
     /// Whether `axis` moves relatively: G91, and for E also M83.

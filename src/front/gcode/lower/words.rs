@@ -7,6 +7,7 @@ use crate::front::gcode::ast::{Item, Line};
 use crate::front::gcode::lexer::Tok;
 use crate::ir::{Axis, Comment, CommentStyle};
 use crate::num::parse_decimal;
+use crate::num::range::{in_range, shown};
 
 /// A G or M code as (major, minor): `G38.2` is (38, 2), `G1` is (1, 0).
 pub(super) type Code = (u32, u32);
@@ -14,22 +15,27 @@ pub(super) type Code = (u32, u32);
 /// The code a G or M word's number names: sign, point and trailing zeros of the minor
 /// part as controllers read them (`G01` is G1, `G38.20` is G38.2).
 pub(super) fn parse_code(number: &str) -> Option<Code> {
-    let number = number.strip_prefix('+').unwrap_or(number);
-    let (major, minor) = match number.split_once('.') {
-        Some((a, b)) => (a, b.trim_end_matches('0')),
-        None => (number, ""),
+    let number = number.strip_prefix('+').unwrap_or(number).as_bytes();
+    let (major, minor) = match number.iter().position(|&b| b == b'.') {
+        Some(dot) => (&number[..dot], trim_zeros(&number[dot + 1..])),
+        None => (number, &[][..]),
     };
-    let major = if major.is_empty() {
-        0
-    } else {
-        major.parse().ok()?
-    };
-    let minor = if minor.is_empty() {
-        0
-    } else {
-        minor.parse().ok()?
-    };
-    Some((major, minor))
+    Some((code_number(major)?, code_number(minor)?))
+}
+
+/// The digits of a code number as an integer (none: 0); `None` for any other character
+/// or a number too large for a code.
+fn code_number(digits: &[u8]) -> Option<u32> {
+    digits.iter().try_fold(0u32, |n, &b| {
+        let digit = char::from(b).to_digit(10)?;
+        n.checked_mul(10)?.checked_add(digit)
+    })
+}
+
+/// `digits` without its trailing zeros (`20` of `G38.20` is the 2 of `G38.2`).
+fn trim_zeros(digits: &[u8]) -> &[u8] {
+    let end = digits.iter().rposition(|&b| b != b'0').map_or(0, |i| i + 1);
+    &digits[..end]
 }
 
 /// A word of a plain block.
@@ -78,11 +84,13 @@ impl<'w, 'a> Slots<'w, 'a> {
 
     /// The word with `letter` (upper case), if the block has one.
     pub fn get(&self, letter: char) -> Option<Word<'a>> {
+        self.at(letter).map(|i| self.words[i as usize])
+    }
+
+    /// Where the word with `letter` (upper case) sits in the block's words.
+    pub fn at(&self, letter: char) -> Option<u32> {
         let slot = (letter as u8).wrapping_sub(b'A') as usize;
-        match self.index.get(slot) {
-            Some(&i) if i != Self::NONE => Some(self.words[i as usize]),
-            _ => None,
-        }
+        self.index.get(slot).copied().filter(|&i| i != Self::NONE)
     }
 
     /// The word of `axis`, if the block has one.
@@ -104,23 +112,23 @@ pub(super) struct Collected<'a> {
     pub percent: bool,
 }
 
-/// The words, bare letters and comments of a parsed line, after the checks that need no
-/// modal state (checksum, number range, exponent typos, unterminated comments); `None`
-/// once an error is reported.
+/// The words, bare letters and comments of a parsed line, into `into`, after the checks
+/// that need no modal state (checksum, number range, exponent typos, unterminated
+/// comments); `None` once an error is reported.
 pub(super) fn collect<'a>(
     text: &'a str,
     line_no: u32,
     line: &Line,
     items: &[Item],
+    into: &mut Collected<'a>,
     diags: &mut Vec<Diagnostic>,
-) -> Option<Collected<'a>> {
+) -> Option<()> {
     if let Some(checksum) = line.checksum
         && let Err(d) = check_checksum(text, line_no, checksum)
     {
         diags.push(d);
         return None;
     }
-    let mut into = Collected::default();
     for item in items {
         match *item {
             Item::Word(s, e) => {
@@ -149,9 +157,9 @@ pub(super) fn collect<'a>(
         }
     }
     if let Some(tail) = line.tail {
-        tail_comment(text, line_no, tail, &mut into, diags)?;
+        tail_comment(text, line_no, tail, into, diags)?;
     }
-    Some(into)
+    Some(())
 }
 
 /// A RepRapFirmware/Marlin checksum `*NN`: the XOR of the bytes before it.
@@ -192,10 +200,10 @@ fn read_word<'a>(
     let w = &text[s..e];
     let (letter, number) = split_word(w);
     let value = parse_decimal(number).unwrap_or(f64::NAN);
-    if !value.is_finite() || value.abs() > 1e12 {
+    if !in_range(value) {
         return Err(err(
             "gcode::number-range",
-            format!("`{w}`: the number is out of range"),
+            format!("`{}`: the number is out of range", shown(w)),
             s,
             s + w.len(),
         )
@@ -347,6 +355,9 @@ mod tests {
         assert_eq!(parse_code("+1"), Some((1, 0)));
         assert_eq!(parse_code("1."), Some((1, 0)));
         assert_eq!(parse_code("-1"), None);
+        assert_eq!(parse_code("4294967296"), None);
+        assert_eq!(parse_code("38.02"), Some((38, 2)));
+        assert_eq!(parse_code(".5"), Some((0, 5)));
         assert_eq!(parse_code(""), Some((0, 0)));
         assert_eq!(number_slice("G 01"), "01");
         assert_eq!(number_slice("X-1"), "-1");
