@@ -1,9 +1,12 @@
 //! The one diagnostic type, its builder methods and its renderings (miette graphical,
 //! plain text, JSON).
 
+mod flood;
+
 use std::fmt;
 
 use crate::ir::Span;
+pub use flood::{DEFAULT_LIMIT, Flood, Tally, Worst};
 
 /// How bad a diagnostic is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -68,7 +71,7 @@ pub struct Location {
 /// assert_eq!(d.severity, Severity::Error);
 /// assert_eq!(d.location.as_ref().unwrap().column, 4);
 /// ```
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Diagnostic {
     /// Error or warning.
     pub severity: Severity,
@@ -84,7 +87,22 @@ pub struct Diagnostic {
     pub label: Option<String>,
     /// What to do about it.
     pub help: Option<String>,
+    /// How far off this case is, in the diagnostic's own unit (mm past a limit, degrees
+    /// of tilt): among many of one code, the largest is named in their summary. Always
+    /// finite; single precision is plenty to rank by and keeps diagnostics small (they
+    /// travel in `Result`s).
+    pub magnitude: Option<f32>,
+    /// For a summary of repeated diagnostics (and, on their way, for the one that stands
+    /// for the hidden ones of a batch): how many it stands for, where and the worst. See
+    /// [`Flood`].
+    pub repeats: Option<Box<Tally>>,
+    /// This diagnostic sums others up (a pass's report at the end of the run, a flood
+    /// summary): it is never hidden by the cap on repeated diagnostics.
+    pub sums_up: bool,
 }
+
+// Magnitudes are finite (see `with_magnitude`), so equality is an equivalence.
+impl Eq for Diagnostic {}
 
 /// Longest source line kept in a diagnostic; longer lines are cut around the mark.
 const SNIPPET_MAX: usize = 160;
@@ -137,7 +155,26 @@ impl Diagnostic {
             location: None,
             label: None,
             help: None,
+            magnitude: None,
+            repeats: None,
+            sums_up: false,
         }
+    }
+
+    /// Sets how far off this case is (ignored unless finite; beyond single precision it
+    /// is kept as the largest such number), for naming the worst of many.
+    ///
+    /// ```
+    /// use ncpost::diag::Diagnostic;
+    /// let d = Diagnostic::warning("polar::reach", "out of reach by 2 mm").with_magnitude(2.0);
+    /// assert_eq!(d.magnitude, Some(2.0));
+    /// assert_eq!(Diagnostic::warning("a::b", "c").with_magnitude(f64::NAN).magnitude, None);
+    /// ```
+    pub fn with_magnitude(mut self, magnitude: f64) -> Self {
+        self.magnitude = magnitude
+            .is_finite()
+            .then_some(magnitude.clamp(f64::from(f32::MIN), f64::from(f32::MAX)) as f32);
+        self
     }
 
     /// Points at `len` characters from 1-based `column` of line `line` whose text is
@@ -221,7 +258,7 @@ impl Diagnostic {
     /// One JSON object (no trailing newline), for `--message-format json`.
     pub fn to_json(&self, file: &str) -> String {
         let loc = self.location.as_ref();
-        serde_json::json!({
+        let mut value = serde_json::json!({
             "severity": self.severity.name(),
             "code": self.code,
             "message": self.message,
@@ -230,8 +267,25 @@ impl Diagnostic {
             "column": loc.map(|l| l.column),
             "label": self.label,
             "help": self.help,
-        })
-        .to_string()
+        });
+        // A summary of repeated diagnostics says what it stands for.
+        if let (Some(t), Some(map)) = (&self.repeats, value.as_object_mut()) {
+            map.insert(
+                "repeats".into(),
+                serde_json::json!({
+                    "count": t.count,
+                    "lines": t.lines,
+                    "first_line": t.line_range.map(|r| r.0),
+                    "last_line": t.line_range.map(|r| r.1),
+                    "worst": t.worst.as_ref().map(|w| serde_json::json!({
+                        "magnitude": w.magnitude,
+                        "line": w.line,
+                        "message": w.message,
+                    })),
+                }),
+            );
+        }
+        value.to_string()
     }
 }
 

@@ -1,6 +1,5 @@
 //! The `ncpost` command line.
 
-use std::collections::HashMap;
 use std::fs::File;
 use std::io::{self, BufReader, IsTerminal, Write};
 use std::path::{Path, PathBuf};
@@ -172,6 +171,10 @@ struct PipelineArgs {
     /// How diagnostics are printed.
     #[arg(long, value_enum, default_value = "human")]
     message_format: MessageFormat,
+    /// Diagnostics of one code shown in full; the rest are summed up in one message per
+    /// code at the end (how many, on which lines, the worst). 0 shows every one.
+    #[arg(long, value_name = "N", default_value_t = ncpost::diag::DEFAULT_LIMIT)]
+    max_repeats: u64,
     /// Timing model for every pass that needs time (stats, plots, extrusion rate, valve
     /// timing), overriding the controller's `timing`.
     #[arg(long, value_enum)]
@@ -221,9 +224,6 @@ enum MessageFormat {
 /// Exit codes: input errors and usage errors.
 const EXIT_INPUT: u8 = 1;
 const EXIT_USAGE: u8 = 2;
-
-/// Warnings of one code shown before the rest are only counted.
-const WARNINGS_PER_CODE: usize = 10;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
@@ -412,7 +412,9 @@ fn stats(args: &StatsArgs) -> ExitCode {
             })?,
             None => passes::stats::Options::default(),
         };
-        let mut b = Pipeline::builder().preset(preset);
+        let mut b = Pipeline::builder()
+            .preset(preset)
+            .max_repeats(pipeline_args.max_repeats);
         if let Some(t) = timing {
             b = b.timing(t);
         }
@@ -590,7 +592,7 @@ fn run(
 }
 
 fn finish(result: Result<Summary, Diagnostic>, printer: &mut Printer) -> ExitCode {
-    let code = match result {
+    match result {
         Ok(s) if s.errors == 0 => ExitCode::SUCCESS,
         Ok(s) => {
             if printer.format == MessageFormat::Human {
@@ -608,9 +610,7 @@ fn finish(result: Result<Summary, Diagnostic>, printer: &mut Printer) -> ExitCod
             printer.print(d);
             ExitCode::from(EXIT_INPUT)
         }
-    };
-    printer.close();
-    code
+    }
 }
 
 /// The output file of an atomic write, with each few megabytes sent to the disk as soon
@@ -814,6 +814,7 @@ fn builder(
     if let Some(t) = args.timing {
         b = b.timing(t.into());
     }
+    b = b.max_repeats(args.max_repeats);
     if let Some(e) = emit {
         b = b.emit(match e {
             EmitArg::Rrf => Emit::Rrf,
@@ -896,14 +897,13 @@ fn attach_progress(pipeline: &mut Pipeline, input: &Path) {
     }));
 }
 
-/// Prints diagnostics to standard error, limiting repeated warnings.
+/// Prints diagnostics to standard error (the pipeline has already capped repeated ones,
+/// see `--max-repeats`).
 struct Printer {
     file: String,
     quiet: bool,
     format: MessageFormat,
     fancy: bool,
-    shown: HashMap<&'static str, usize>,
-    hidden: HashMap<&'static str, usize>,
 }
 
 impl Printer {
@@ -913,8 +913,6 @@ impl Printer {
             quiet,
             format,
             fancy: io::stderr().is_terminal(),
-            shown: HashMap::new(),
-            hidden: HashMap::new(),
         }
     }
 
@@ -927,31 +925,11 @@ impl Printer {
             let _ = writeln!(err, "{}", d.to_json(&self.file));
             return;
         }
-        if d.severity == Severity::Warning {
-            let n = self.shown.entry(d.code).or_default();
-            if *n >= WARNINGS_PER_CODE {
-                *self.hidden.entry(d.code).or_default() += 1;
-                return;
-            }
-            *n += 1;
-        }
         if d.severity == Severity::Note {
             let _ = writeln!(err, "{}", d.message);
             return;
         }
         let _ = writeln!(err, "{}", d.render(&self.file, self.fancy));
-    }
-
-    fn close(&mut self) {
-        if self.format == MessageFormat::Json {
-            return;
-        }
-        let mut hidden: Vec<_> = self.hidden.iter().collect();
-        hidden.sort();
-        for (code, n) in hidden {
-            eprintln!("note: {n} more warnings [{code}] not shown");
-        }
-        self.hidden.clear();
     }
 }
 

@@ -7,7 +7,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::back::{self, Backend};
-use crate::diag::{Diagnostic, Severity};
+use crate::diag::{Diagnostic, Flood, Severity};
 use crate::front::{self, Frontend};
 use crate::ir::{Block, dump};
 use crate::machine::RapidRule;
@@ -65,6 +65,7 @@ pub struct Builder {
     dump_after: Option<String>,
     dump: Option<Box<dyn Write + Send>>,
     timing: Option<crate::motion::Timing>,
+    max_repeats: Option<u64>,
 }
 
 /// A configured pipeline, ready to run.
@@ -79,6 +80,9 @@ pub struct Pipeline {
 /// The passes and the IR dump point: everything between frontend and backend.
 struct Stages {
     passes: Vec<Box<dyn Pass>>,
+    /// Diagnostics of one code shown in full before the rest are only counted
+    /// ([`Flood`]; 0: all of them).
+    max_repeats: u64,
     /// Dump point: 0 after the frontend, i + 1 after pass i.
     dump_at: Option<usize>,
     dump: Option<Box<dyn Write + Send>>,
@@ -125,6 +129,14 @@ impl Builder {
     /// (`--timing`).
     pub fn timing(mut self, timing: crate::motion::Timing) -> Self {
         self.timing = Some(timing);
+        self
+    }
+
+    /// Shows `n` diagnostics of each code in full and sums up the rest in one summary
+    /// per code at the end, without storing them (0, the default, shows every one; the
+    /// command line uses [`crate::diag::DEFAULT_LIMIT`]).
+    pub fn max_repeats(mut self, n: u64) -> Self {
+        self.max_repeats = Some(n);
         self
     }
 
@@ -205,6 +217,7 @@ impl Builder {
             preset: self.preset,
             stages: Stages {
                 passes,
+                max_repeats: self.max_repeats.unwrap_or(0),
                 dump_at,
                 dump: self.dump,
             },
@@ -234,7 +247,9 @@ impl Pipeline {
     /// Diagnostics go to `on_diag` in input order, a batch of blocks at a time as each
     /// batch is written (within a batch: the frontend's, then each pass's, then the
     /// backend's). `Err` only for I/O failures of the writer; input errors are counted in
-    /// the summary.
+    /// the summary. With [`Builder::max_repeats`] only the first few of each code come one
+    /// by one, and one summary per code with the rest comes last (the counts in the
+    /// summary include every one).
     ///
     /// Two threads share the work: this one reads the input while few batches are on
     /// their way; otherwise both run the passes and the backend on whichever batch waits
@@ -283,9 +298,10 @@ impl Pipeline {
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Result<Summary, Diagnostic> {
         let mut summary = Summary::default();
+        let mut flood = Flood::new(self.stages.max_repeats);
         if !self.notes.is_empty() {
             let mut notes = self.notes.clone();
-            report(&mut notes, on_diag, &mut summary);
+            report(&mut notes, on_diag, &mut summary, &mut flood);
         }
         let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
         let backend = backend_for(&self.preset, &mut out);
@@ -301,7 +317,7 @@ impl Pipeline {
                     rest.push(d);
                 }
             }
-            report(&mut rest, on_diag, summary);
+            report(&mut rest, on_diag, summary, &mut flood);
         };
         let (aborted, written, failed) = {
             let relay = self.stages.relay(backend);
@@ -331,6 +347,9 @@ impl Pipeline {
             );
         } else if !failed && let Err(e) = out.flush() {
             deliver(vec![vec![back::io_error(e)]], &mut summary);
+        }
+        for d in flood.summaries() {
+            on_diag(d);
         }
         match io_error {
             Some(d) => Err(d),
@@ -371,6 +390,7 @@ impl Pipeline {
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Summary {
         let mut summary = Summary::default();
+        let mut flood = Flood::new(self.stages.max_repeats);
         let mut diags = Vec::new();
         let mut written = 0u64;
         let mut deliver = |blocks: &mut Vec<Block>, diags: &mut Vec<Diagnostic>| {
@@ -388,7 +408,7 @@ impl Pipeline {
                 .whole()
                 .flow(0, &mut cur, &mut next, &mut diags, &mut deliver);
             if !diags.is_empty() {
-                report(&mut diags, on_diag, &mut summary);
+                report(&mut diags, on_diag, &mut summary, &mut flood);
             }
             counter += 1;
             if counter >= 1 << 14 {
@@ -403,7 +423,10 @@ impl Pipeline {
         if let Err(d) = back.finish() {
             diags.push(d);
         }
-        report(&mut diags, on_diag, &mut summary);
+        report(&mut diags, on_diag, &mut summary, &mut flood);
+        for d in flood.summaries() {
+            on_diag(d);
+        }
         summary
     }
 }
@@ -460,6 +483,7 @@ impl Stages {
             written: 0,
         });
         Relay {
+            max_repeats: self.max_repeats,
             schedule: Schedule::new(count + 1),
             passes,
             writer,
@@ -472,6 +496,7 @@ impl Stages {
     /// All passes as one part.
     fn whole(&mut self) -> Part<'_> {
         Part {
+            max_repeats: self.max_repeats,
             passes: &mut self.passes,
             dump_at: self.dump_at,
             dump: self.dump.as_mut(),
@@ -504,6 +529,8 @@ struct WriterStage<'a> {
 /// What the two threads of [`Pipeline::run_threaded`] share. The schedule gives a stage
 /// to one thread at a time, so its lock is never waited for.
 struct Relay<'a> {
+    /// As [`Stages::max_repeats`].
+    max_repeats: u64,
     schedule: Schedule,
     passes: Vec<Mutex<PassStage<'a>>>,
     writer: Mutex<WriterStage<'a>>,
@@ -611,14 +638,23 @@ impl Relay<'_> {
             batch.blocks.clear();
             return;
         }
-        run_pass(stage.pass, &mut batch.blocks, next, &mut batch.diags);
+        run_pass(
+            stage.pass,
+            &mut batch.blocks,
+            next,
+            &mut batch.diags,
+            self.max_repeats,
+        );
         // The scratch buffer keeps the batch's size, as the spare buffers do.
         next.shrink_to(BATCH);
         if batch.end {
             // What the pass still holds goes on after this batch's blocks.
-            stage
-                .pass
-                .finish(&mut Output::new(&mut batch.blocks, &mut batch.diags));
+            finish_pass(
+                stage.pass,
+                &mut batch.blocks,
+                &mut batch.diags,
+                self.max_repeats,
+            );
         }
     }
 
@@ -683,10 +719,27 @@ fn run_pass(
     cur: &mut Vec<Block>,
     next: &mut Vec<Block>,
     diags: &mut Vec<Diagnostic>,
+    max_repeats: u64,
 ) {
     next.clear();
-    pass.run(cur, &mut Output::new(next, diags));
+    pass.run(cur, &mut Output::with_limit(next, diags, max_repeats));
     std::mem::swap(cur, next);
+}
+
+/// Lets `pass` release what it holds into `blocks` after the last batch. What it reports
+/// then sums up the run (as `limits` sums up the blocks past a limit it did not report
+/// one by one), so the cap on repeated diagnostics leaves it whole.
+fn finish_pass(
+    pass: &mut Box<dyn Pass>,
+    blocks: &mut Vec<Block>,
+    diags: &mut Vec<Diagnostic>,
+    max_repeats: u64,
+) {
+    let before = diags.len();
+    pass.finish(&mut Output::with_limit(blocks, diags, max_repeats));
+    for d in &mut diags[before..] {
+        d.sums_up = true;
+    }
 }
 
 /// Writes `blocks` as IR text to the dump.
@@ -701,6 +754,8 @@ fn dump_blocks(out: &mut Box<dyn Write + Send>, blocks: &[Block]) {
 
 /// The passes with the dump point, for the single-threaded [`Pipeline::run`].
 struct Part<'a> {
+    /// As [`Stages::max_repeats`].
+    max_repeats: u64,
     passes: &'a mut [Box<dyn Pass>],
     /// Dump point (0 after the frontend, i + 1 after pass i).
     dump_at: Option<usize>,
@@ -722,7 +777,7 @@ impl Part<'_> {
             self.dump_blocks(cur);
         }
         for i in from..self.passes.len() {
-            run_pass(&mut self.passes[i], cur, next, diags);
+            run_pass(&mut self.passes[i], cur, next, diags, self.max_repeats);
             if self.dump_at == Some(i + 1) {
                 self.dump_blocks(cur);
             }
@@ -740,7 +795,7 @@ impl Part<'_> {
         let mut next = Vec::new();
         for i in 0..self.passes.len() {
             cur.clear();
-            self.passes[i].finish(&mut Output::new(&mut cur, diags));
+            finish_pass(&mut self.passes[i], &mut cur, diags, self.max_repeats);
             self.flow(i + 1, &mut cur, &mut next, diags, deliver);
         }
         if let Some(d) = &mut self.dump {
@@ -755,14 +810,24 @@ impl Part<'_> {
     }
 }
 
-fn report(diags: &mut Vec<Diagnostic>, on_diag: &mut dyn FnMut(Diagnostic), summary: &mut Summary) {
+/// Counts `diags` into `summary` (each for every diagnostic it stands for) and hands
+/// them to `on_diag`, but for what `flood` holds back to sum up at the end of the run.
+fn report(
+    diags: &mut Vec<Diagnostic>,
+    on_diag: &mut dyn FnMut(Diagnostic),
+    summary: &mut Summary,
+    flood: &mut Flood,
+) {
     for d in diags.drain(..) {
+        let n = d.repeats.as_ref().map_or(1, |t| t.count);
         match d.severity {
-            Severity::Error => summary.errors += 1,
-            Severity::Warning => summary.warnings += 1,
+            Severity::Error => summary.errors += n,
+            Severity::Warning => summary.warnings += n,
             Severity::Note => {}
         }
-        on_diag(d);
+        if let Some(d) = flood.admit(d) {
+            on_diag(d);
+        }
     }
 }
 

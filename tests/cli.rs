@@ -772,7 +772,7 @@ fn quiet_hides_warnings_but_not_errors() {
 }
 
 #[test]
-fn repeated_warnings_are_counted_after_ten() {
+fn repeated_warnings_are_summed_up_after_five() {
     let mut src = String::from("G21 G90\n");
     for i in 0..15 {
         src.push_str(&format!("#{i} = 1\n"));
@@ -781,15 +781,33 @@ fn repeated_warnings_are_counted_after_ten() {
     let out = run_in(dir.path(), &["check", "many.gcode"], None);
     assert_exit(&out, 0);
     let err = stderr(&out);
-    assert_eq!(err.matches("gcode::unevaluated\n").count(), 10, "{err}");
-    assert!(
-        err.contains("note: 5 more warnings [gcode::unevaluated] not shown"),
-        "{err}"
-    );
-    // JSON shows them all.
+    // Five in full and the summary, which has the code too.
+    assert_eq!(err.matches("gcode::unevaluated\n").count(), 6, "{err}");
+    // JSON is capped the same way; --max-repeats 0 shows them all.
     let out = run_in(
         dir.path(),
         &["check", "--message-format", "json", "many.gcode"],
+        None,
+    );
+    let json = stderr(&out);
+    assert_eq!(json.lines().count(), 6);
+    let summary: serde_json::Value =
+        serde_json::from_str(json.lines().last().unwrap_or("")).expect("JSON");
+    assert_eq!(
+        summary["message"],
+        "10 more `gcode::unevaluated` warnings not shown (15 in all, the first 5 above), \
+         on lines 7, 8, 9, … (7..16 in all); they carry no magnitude, so no worst case is named"
+    );
+    let out = run_in(
+        dir.path(),
+        &[
+            "check",
+            "--message-format",
+            "json",
+            "--max-repeats",
+            "0",
+            "many.gcode",
+        ],
         None,
     );
     assert_eq!(stderr(&out).lines().count(), 15);

@@ -32,10 +32,10 @@ impl<W: std::io::Write> Emitter<W> {
             }
         };
         // The axis words first: the mode line depends on whether E is printed.
-        let words = self.axis_words(motion, target, block)?;
+        let mut words = self.axis_words(motion, target, block)?;
         let relative = self.fmt.extrusion == Extrusion::Relative;
         if let Flavor::Grbl(_) = self.flavor {
-            grbl_motion_check(words.named, motion, block)?;
+            grbl_motion_check(&mut words, motion, target, self.track.pos(), block)?;
         }
         let e_mode = words
             .named
@@ -274,12 +274,29 @@ impl<W: std::io::Write> Emitter<W> {
 }
 
 /// Grbl drives X, Y and Z only, and rejects `P` on an arc.
-fn grbl_motion_check(named: AxisSet, motion: &Motion, block: &Block) -> Result<(), Diagnostic> {
-    let others: String = named
-        .difference(AxisSet::XYZ)
+///
+/// Only the axes beyond XYZ that this move writes or changes are an error. An axis that is
+/// named only because the controller's position on it is not established (an earlier
+/// move to it was rejected here) is left out of the words: Grbl has no such axis, the
+/// earlier move's error already says so, and naming it again would blame a move such as
+/// `G0 X1 Y1` for axes it does not move.
+fn grbl_motion_check(
+    words: &mut Words,
+    motion: &Motion,
+    target: &Joints,
+    from: &Joints,
+    block: &Block,
+) -> Result<(), Diagnostic> {
+    let beyond = words.named.difference(AxisSet::XYZ);
+    let moved: AxisSet = beyond
         .iter()
-        .map(|a| a.letter())
+        .filter(|&a| {
+            motion.written.contains(a)
+                || matches!((from.get(a), target.get(a)), (Some(f), Some(t)) if f != t)
+        })
         .collect();
+    words.named = words.named.difference(beyond.difference(moved));
+    let others: String = moved.iter().map(|a| a.letter()).collect();
     if !others.is_empty() {
         return Err(Diagnostic::error(
             "grbl::axis",

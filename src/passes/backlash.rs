@@ -161,12 +161,7 @@ pub struct Backlash {
     start: Start,
     /// Programmed (IR) position after the last block.
     track: crate::ir::Tracker,
-    /// Arc and pose errors reported (only the first few are shown).
-    errors: usize,
 }
-
-/// Most error diagnostics reported before they are only counted.
-const DIAG_CAP: usize = 10;
 
 impl Backlash {
     /// The pass with `options`: amounts finite and `>= 0`, at least one `> 0`; a `feed`
@@ -202,7 +197,6 @@ impl Backlash {
             feed: options.feed,
             start: options.start,
             track: crate::ir::Tracker::default(),
-            errors: 0,
         })
     }
 
@@ -235,10 +229,8 @@ impl Backlash {
     }
 
     fn error(&mut self, out: &mut Output<'_>, make: impl FnOnce() -> Diagnostic) {
-        self.errors += 1;
-        if self.errors <= DIAG_CAP {
-            out.diag(make());
-        }
+        // The pipeline caps repeated diagnostics and counts every one.
+        out.diag(make());
     }
 
     /// Whether the arc moves a compensated axis (in its plane or along its normal).
@@ -431,12 +423,6 @@ impl Pass for Backlash {
     }
 
     fn finish(&mut self, out: &mut Output<'_>) {
-        if self.errors > DIAG_CAP {
-            out.diag(Diagnostic::note(
-                "backlash::more",
-                format!("{} more backlash errors not shown", self.errors - DIAG_CAP),
-            ));
-        }
         let parts: Vec<String> = self
             .axes
             .iter()

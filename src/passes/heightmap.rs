@@ -142,9 +142,6 @@ pub const INFO: PassInfo = PassInfo {
     defaults: || super::to_toml(&Options::default()),
 };
 
-/// Most diagnostics of one code reported before they are only counted.
-const DIAG_CAP: usize = 10;
-
 /// The `heightmap` pass.
 pub struct Heightmap {
     map: HeightMap,
@@ -258,9 +255,11 @@ impl Heightmap {
         out: &mut Output<'_>,
         make: impl FnOnce() -> Diagnostic,
     ) {
+        // The pipeline caps repeated diagnostics (and counts every one); only the
+        // unknown position is reported once, at the first such move.
         let n = self.counts.entry(code).or_insert(0);
         *n += 1;
-        if *n <= DIAG_CAP {
+        if code != "heightmap::unknown" || *n == 1 {
             out.diag(make());
         }
     }
@@ -448,7 +447,6 @@ impl Heightmap {
                 .at_span(block.span)
                 .with_help("start the program with a move to absolute X, Y and Z (the first such move is reported)")
             });
-            self.counts.insert("heightmap::unknown", DIAG_CAP + 1);
             self.track.set_pos(to);
             out.push(block);
             return;
@@ -495,17 +493,6 @@ impl Pass for Heightmap {
     fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
         for block in blocks.drain(..) {
             self.block(block, out);
-        }
-    }
-
-    fn finish(&mut self, out: &mut Output<'_>) {
-        for (code, &n) in &self.counts {
-            if n > DIAG_CAP && *code != "heightmap::unknown" {
-                out.diag(Diagnostic::note(
-                    code,
-                    format!("{} more `{code}` diagnostics not shown", n - DIAG_CAP),
-                ));
-            }
         }
     }
 }

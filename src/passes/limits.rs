@@ -163,7 +163,9 @@ impl Limits {
                         ),
                     )
                     .at_span(block.span)
-                    .with_help(help),
+                    .with_help(help)
+                    // The excess, for naming the worst of many.
+                    .with_magnitude(side),
                 );
             }
         }

@@ -62,15 +62,35 @@ impl<'a> Context<'a> {
 }
 
 /// Where a pass puts its output.
+///
+/// Diagnostics reported through [`Output::diag`] go through the cap on repeated
+/// diagnostics ([`crate::diag::Flood`]): past its limit a code's diagnostics are counted,
+/// not stored, so a block that a pass cuts into a million pieces with a warning each
+/// holds one counter instead of a million warnings.
 pub struct Output<'a> {
     pub(crate) blocks: &'a mut Vec<Block>,
     pub(crate) diags: &'a mut Vec<Diagnostic>,
+    flood: crate::diag::Flood,
 }
 
 impl<'a> Output<'a> {
-    /// An output writing to `blocks` and `diags`.
+    /// An output writing to `blocks` and `diags`, storing every diagnostic (the pipeline
+    /// uses [`Output::with_limit`]).
     pub fn new(blocks: &'a mut Vec<Block>, diags: &'a mut Vec<Diagnostic>) -> Self {
-        Output { blocks, diags }
+        Output::with_limit(blocks, diags, 0)
+    }
+    /// An output writing to `blocks` and `diags`, storing `limit` diagnostics of each code
+    /// in full and counting the rest (0: storing all).
+    pub fn with_limit(
+        blocks: &'a mut Vec<Block>,
+        diags: &'a mut Vec<Diagnostic>,
+        limit: u64,
+    ) -> Self {
+        Output {
+            blocks,
+            diags,
+            flood: crate::diag::Flood::new(limit),
+        }
     }
     /// Passes a block on.
     pub fn push(&mut self, block: Block) {
@@ -84,9 +104,9 @@ impl<'a> Output<'a> {
             self.blocks.append(blocks);
         }
     }
-    /// Reports a diagnostic.
+    /// Reports a diagnostic (stored in full, or counted past the limit of its code).
     pub fn diag(&mut self, diag: Diagnostic) {
-        self.diags.push(diag);
+        self.flood.push(diag, self.diags);
     }
 }
 
@@ -257,26 +277,40 @@ pub fn to_toml<T: serde::Serialize>(value: &T) -> String {
     toml::to_string(value).unwrap_or_default()
 }
 
+/// The syntax of a command-line pass spec, for error messages.
+pub const SPEC_SYNTAX: &str = "--pass NAME:key=value,key=[a,b],key=\"text\"";
+
 /// Parses a command-line pass spec `NAME[:key=value,...]` into the name and a table.
-/// Values are TOML literals (`1.5`, `true`, `"text"`); a bare word is taken as a string.
+/// Values are TOML literals (`1.5`, `true`, `"text"`, `[105, 53]`); a bare word is taken
+/// as a string. Commas inside brackets or quotes belong to the value.
 ///
 /// ```
 /// let (name, t) = ncpost::passes::parse_spec("stats:rapid_feed=6000,label=x").unwrap();
 /// assert_eq!(name, "stats");
 /// assert_eq!(t["rapid_feed"].as_integer(), Some(6000));
 /// assert_eq!(t["label"].as_str(), Some("x"));
+/// let (_, t) = ncpost::passes::parse_spec("polar-ik:center=[105,53],note=\"a,b\"").unwrap();
+/// assert_eq!(t["center"].as_array().map(|a| a.len()), Some(2));
+/// assert_eq!(t["note"].as_str(), Some("a,b"));
 /// ```
 pub fn parse_spec(spec: &str) -> Result<(String, toml::Table), Diagnostic> {
     let (name, rest) = spec.split_once(':').unwrap_or((spec, ""));
     let name = name.trim();
     if name.is_empty() {
-        return Err(Diagnostic::settings(format!("`{spec}` has no pass name")));
+        return Err(Diagnostic::settings(format!(
+            "`{spec}` has no pass name; write {SPEC_SYNTAX}"
+        )));
     }
     let mut table = toml::Table::new();
-    for pair in rest.split(',').filter(|p| !p.trim().is_empty()) {
-        let (key, value) = pair
-            .split_once('=')
-            .ok_or_else(|| Diagnostic::settings(format!("`{pair}` is not key=value")))?;
+    for pair in split_options(rest)?
+        .into_iter()
+        .filter(|p| !p.trim().is_empty())
+    {
+        let (key, value) = pair.split_once('=').ok_or_else(|| {
+            Diagnostic::settings(format!(
+                "`{pair}` in `{spec}` is not key=value; write {SPEC_SYNTAX}"
+            ))
+        })?;
         let key = key.trim();
         let value = value.trim();
         let parsed = toml::from_str::<toml::Table>(&format!("v = {value}"))
@@ -286,6 +320,40 @@ pub fn parse_spec(spec: &str) -> Result<(String, toml::Table), Diagnostic> {
         table.insert(key.to_string(), parsed);
     }
     Ok((name.to_string(), table))
+}
+
+/// Splits the options of a pass spec at the commas outside brackets and quotes.
+fn split_options(rest: &str) -> Result<Vec<&str>, Diagnostic> {
+    let mut parts = Vec::new();
+    let mut depth = 0usize;
+    let mut quote = None;
+    let mut start = 0;
+    for (i, c) in rest.char_indices() {
+        match (quote, c) {
+            (Some(q), _) if c == q => quote = None,
+            (Some(_), _) => {}
+            (None, '"' | '\'') => quote = Some(c),
+            (None, '[' | '{') => depth += 1,
+            (None, ']' | '}') => depth = depth.saturating_sub(1),
+            (None, ',') if depth == 0 => {
+                parts.push(&rest[start..i]);
+                start = i + 1;
+            }
+            _ => {}
+        }
+    }
+    if quote.is_some() || depth > 0 {
+        let what = if quote.is_some() {
+            "a quote"
+        } else {
+            "a bracket"
+        };
+        return Err(Diagnostic::settings(format!(
+            "`{rest}` leaves {what} open; write {SPEC_SYNTAX}"
+        )));
+    }
+    parts.push(&rest[start..]);
+    Ok(parts)
 }
 
 #[cfg(test)]

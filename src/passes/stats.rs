@@ -11,13 +11,15 @@
 //! helical length), or of the tool's Cartesian path on a polar machine
 //! ([`Stats::with_polar`], which `ncpost stats` uses for `[polar]` presets); the extruded amount is the sum of the positive E steps, retraction
 //! the sum of the negative ones. Bounding boxes are over the XYZ targets of all moves and
-//! over the two ends of the moves that extrude.
+//! over the two ends of the moves that extrude; an arc adds the points where it bulges
+//! furthest along its plane's axes (a full circle its whole square).
 
 use serde::{Deserialize, Serialize};
 
 use super::{Check, Context, PassInfo};
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target, Tracker};
+use crate::motion::arc::ArcPath;
 use crate::motion::{self, Model, Planner, Timing};
 
 /// Options of `stats`.
@@ -112,6 +114,32 @@ fn grow(bounds: &mut Bounds, p: [Option<f64>; 3]) {
             *b = Some(b.map_or((v, v), |(lo, hi)| (lo.min(v), hi.max(v))));
         }
     }
+}
+
+/// The points of an arc where it reaches furthest along its plane's axes, both ways: the
+/// quarter-turn angles (0°, 90°, 180°, 270° from the centre) its sweep passes. Of each,
+/// the first and the last pass are enough: the radius changes linearly along the arc, so
+/// it is largest at one of them.
+fn arc_extremes(path: &ArcPath) -> Vec<Joints> {
+    let total = path.sweep.abs();
+    if !(total.is_finite() && total > 0.0) {
+        return Vec::new();
+    }
+    let tau = std::f64::consts::TAU;
+    let dir = path.sweep.signum();
+    let mut points = Vec::new();
+    for q in 0..4 {
+        let angle = f64::from(q) * std::f64::consts::FRAC_PI_2;
+        // Angle travelled from the start to the first pass of this direction.
+        let first = (dir * (angle - path.start_angle)).rem_euclid(tau);
+        if first > total {
+            continue;
+        }
+        let last = first + tau * ((total - first) / tau).floor();
+        points.push(path.point(first / total));
+        points.push(path.point(last / total));
+    }
+    points
 }
 
 fn bounds_text(b: &Bounds, sep: &str) -> Option<String> {
@@ -242,6 +270,18 @@ impl Stats {
                     t.retracted -= de;
                 }
                 grow(&mut t.bounds, to);
+                if let MotionKind::Arc(arc) = m.kind
+                    && self.polar.is_none()
+                    && let Some(path) = ArcPath::new(self.track.pos(), end, &arc)
+                {
+                    for p in arc_extremes(&path) {
+                        let p = [p.get(Axis::X), p.get(Axis::Y), p.get(Axis::Z)];
+                        grow(&mut t.bounds, p);
+                        if de > 0.0 {
+                            grow(&mut t.extruded_bounds, p);
+                        }
+                    }
+                }
                 if let Some(seg) = self.planner.model().motion(self.track.pos(), m) {
                     self.planner.push_move(seg, ());
                 }

@@ -339,7 +339,9 @@ impl PolarIk {
                 .with_help(
                     "move the part towards the table's centre (polar-ik `center` is the bed \
                      point over the table's axis), or check [polar] r_max",
-                ),
+                )
+                // How far past the range, for naming the worst of many.
+                .with_magnitude((p.r - self.polar.r_max).max(self.polar.r_min() - p.r)),
             );
         }
     }
