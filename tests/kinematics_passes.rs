@@ -1119,7 +1119,7 @@ fn limits_sums_up_long_runs_of_blocks_past_a_limit() {
             &[(Axis::X, 190.0)],
         ));
     }
-    let (out, diags) = run("limits", "", Some(&m), blocks.clone());
+    let (out, diags) = run("limits", "max_reported = 10", Some(&m), blocks.clone());
     assert_eq!(out.len(), 28);
     assert!(diags.iter().all(|d| d.code == "limits::range"));
     // 10 Z errors one by one, 3 X errors, and one summary of Z's 25.
@@ -1134,7 +1134,14 @@ fn limits_sums_up_long_runs_of_blocks_past_a_limit() {
         summary.message
     );
     assert_eq!(summary.location.as_ref().map(|l| l.line), Some(112));
-    // max_reported = 0: every block.
-    let (_, diags) = run("limits", "max_reported = 0", Some(&m), blocks);
+    // max_reported = 0 (the default): every block, each with its excess, for the run's
+    // repeat cap to sum up.
+    let (_, diags) = run("limits", "", Some(&m), blocks);
     assert_eq!(diags.len(), 28);
+    let worst = diags
+        .iter()
+        .filter(|d| d.message.starts_with("Z ="))
+        .filter_map(|d| d.magnitude)
+        .fold(0.0f32, f32::max);
+    assert!((worst - 3.5).abs() < 1e-4, "{worst}");
 }

@@ -3,11 +3,11 @@
 //! Each joint move's known axes that have limits ([`Machine::limits`]: the linear travel
 //! and the non-cyclic rotaries) are checked, in the IR frame (invariant 2: the frame the
 //! machine moves in, without G92 offsets). A value outside the range by more than
-//! `tolerance` is the error `limits::range`, one per axis and block, for the first
-//! `max_reported` blocks of each axis and side; after them the pass counts, and at the end
-//! one more `limits::range` error (at the worst block) says how many blocks passed that
-//! limit in all, over which lines and by how much at worst, so a part set up 3 mm too low
-//! gives a dozen messages instead of one per block. G53 moves name machine coordinates,
+//! `tolerance` is the error `limits::range`, one per axis and block, carrying its excess;
+//! the run's repeat cap (`--max-repeats`) shows the first few and sums up the rest with
+//! the count, the lines and the worst excess, so a part set up 3 mm too low gives a few
+//! messages instead of one per block. With `max_reported` > 0 the pass itself reports
+//! only that many blocks per axis and side and then one summary per axis and side. G53 moves name machine coordinates,
 //! whose range the machine definition does not give; their written axes are not
 //! checked.
 
@@ -34,7 +34,8 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             tolerance: 1e-6,
-            max_reported: 10,
+            // The run's repeat cap (`--max-repeats`) sums up the rest, naming the worst.
+            max_reported: 0,
         }
     }
 }
