@@ -79,7 +79,7 @@ fn input_paths(input: &[Block]) -> HashMap<u32, Vec<Vector2<f64>>> {
                 let mut pts = vec![Vector2::new(x0, y0)];
                 match m.kind {
                     MotionKind::Arc(arc) => {
-                        for j in arc_points(&from, &to, &arc, 1e-4) {
+                        for j in arc_points(&from, &to, &arc, 1e-4).expect("chords") {
                             pts.push(Vector2::new(j.values[0], j.values[1]));
                         }
                     }
@@ -495,7 +495,7 @@ fn arcs_become_chords_within_tolerance() {
         center: nalgebra::Vector3::zeros(),
         extra_turns: 1,
     };
-    let pts = arc_points(&a, &b, &arc, TOL);
+    let pts = arc_points(&a, &b, &arc, TOL).expect("chords");
     let mut prev = Vector2::new(30.0, 0.0);
     let mut swept = 0.0;
     for p in &pts {

@@ -344,3 +344,17 @@ fn signals_remove_the_temporary_file() {
         assert!(!dir.path().join("out.ngc").exists(), "after SIG{name}");
     }
 }
+
+/// One arc of a 100 km radius and 600 turns through the polar printer: an error at its
+/// line, not millions of chords held in memory (issue 21, item 11).
+#[test]
+fn a_huge_polar_arc_is_an_error_at_its_line() {
+    let preset = ncpost::preset::Preset::builtin("polar-printer").expect("preset");
+    let src = "G0 X10 Y0\nG2 X10 Y0 I100000 J0 P600 F1000\n";
+    let diags = ncpost::pipeline::compile_str(src, &preset).expect_err("refused");
+    let err = diags
+        .iter()
+        .find(|d| d.code == "polar-ik::chords")
+        .expect("polar-ik::chords");
+    assert_eq!(err.location.as_ref().map(|l| l.line), Some(2));
+}

@@ -383,8 +383,13 @@ fn longest_fit(
     fits.ok_or(over.0)
 }
 
+/// Most chords one arc may become: beyond it (a radius of kilometres, thousands of `P`
+/// turns) the arc is an error rather than millions of blocks held in memory.
+pub const MAX_ARC_CHORDS: usize = 100_000;
+
 /// Cuts an arc from `from` to `to` into chords within `tolerance`: the points after the
 /// start, the last being `to` exactly. Other axes move in proportion to the angle swept.
+/// `Err` with the count needed when that is more than [`MAX_ARC_CHORDS`].
 ///
 /// ```
 /// use ncpost::ir::{Arc, Axis, Joints, Plane};
@@ -395,14 +400,22 @@ fn longest_fit(
 /// let mut b = a;
 /// b.set(Axis::X, -10.0);
 /// let arc = Arc { clockwise: false, plane: Plane::XY, center: Vector3::zeros(), extra_turns: 0 };
-/// let pts = ncpost::passes::polar_ik::arc_points(&a, &b, &arc, 0.01);
+/// let pts = ncpost::passes::polar_ik::arc_points(&a, &b, &arc, 0.01).unwrap();
 /// assert_eq!(pts.last(), Some(&b));
 /// assert!(pts.iter().all(|p| p.get(Axis::Y).unwrap() >= 0.0)); // counter-clockwise: over +Y
 /// ```
-pub fn arc_points(from: &Joints, to: &Joints, arc: &Arc, tolerance: f64) -> Vec<Joints> {
+pub fn arc_points(
+    from: &Joints,
+    to: &Joints,
+    arc: &Arc,
+    tolerance: f64,
+) -> Result<Vec<Joints>, usize> {
     match ArcPath::new(from, to, arc) {
-        Some(path) => path.chords(tolerance),
-        None => vec![*to],
+        Some(path) => match path.chord_count(tolerance) {
+            n if n > MAX_ARC_CHORDS => Err(n),
+            n => Ok(path.points(n).collect()),
+        },
+        None => Ok(vec![*to]),
     }
 }
 

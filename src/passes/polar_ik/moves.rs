@@ -8,7 +8,7 @@ use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind, Target,
 };
 
-use super::geometry::{Piece, PolarPoint, arc_points, plan};
+use super::geometry::{MAX_ARC_CHORDS, Piece, PolarPoint, arc_points, plan};
 use super::{ORIGIN_EPS, Output, PolarIk};
 
 /// A straight input move's lengths and programmed speed, for timing its pieces.
@@ -31,6 +31,41 @@ struct Line {
 const ARC_SHARE: f64 = 0.5;
 
 impl PolarIk {
+    /// The chords of an arc from the position to `to`, or, when it needs more than
+    /// [`MAX_ARC_CHORDS`], an error at its line (the arc is dropped and the position
+    /// moves to its end).
+    fn chords_or_error(
+        &mut self,
+        block: &Block,
+        to: &Joints,
+        arc: &crate::ir::Arc,
+        tolerance: f64,
+        out: &mut Output<'_>,
+    ) -> Option<Vec<Joints>> {
+        match arc_points(&self.pos, to, arc, tolerance) {
+            Ok(points) => Some(points),
+            Err(needed) => {
+                out.diag(
+                    Diagnostic::error(
+                        "polar-ik::chords",
+                        format!(
+                            "this arc needs {needed} chords to stay within {tolerance} mm; \
+                             polar-ik makes at most {MAX_ARC_CHORDS} of one arc"
+                        ),
+                    )
+                    .at_span(block.span)
+                    .with_label("too long an arc")
+                    .with_help(
+                        "check the arc's centre offsets and P turns (a radius of kilometres \
+                         is most likely a typo), or raise polar-ik's tolerance",
+                    ),
+                );
+                self.pos = *to;
+                None
+            }
+        }
+    }
+
     /// `kinematics = "controller"`: arcs become chords, everything else passes.
     pub(super) fn run_controller(&mut self, block: Block, out: &mut Output<'_>) {
         if let BlockKind::Motion(m) = &block.kind
@@ -38,7 +73,11 @@ impl PolarIk {
         {
             let (a1, a2, _) = arc.plane.axes();
             if self.pos.known.contains(a1) && self.pos.known.contains(a2) {
-                let points = arc_points(&self.pos, &to, &arc, self.options.tolerance);
+                let Some(points) =
+                    self.chords_or_error(&block, &to, &arc, self.options.tolerance, out)
+                else {
+                    return;
+                };
                 let n = points.len();
                 let total = arc_length(&self.pos, &points);
                 let mut prev = self.pos;
@@ -107,7 +146,11 @@ impl PolarIk {
         let chords;
         let points: &[Joints] = match m.kind {
             MotionKind::Arc(arc) => {
-                chords = arc_points(&from, &to, &arc, ARC_SHARE * self.options.tolerance);
+                let tolerance = ARC_SHARE * self.options.tolerance;
+                let Some(points) = self.chords_or_error(&block, &to, &arc, tolerance, out) else {
+                    return;
+                };
+                chords = points;
                 &chords
             }
             _ => std::slice::from_ref(&to),
