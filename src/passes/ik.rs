@@ -618,11 +618,12 @@ impl Ik {
 
     /// `ik::unreachable` for tool axis `a`.
     fn unreachable(&self, a: Unit<Vector3<f64>>) -> Diagnostic {
-        let miss = match self.miss_angle(a) {
+        let miss_deg = self.miss_angle(a);
+        let miss = match miss_deg {
             Some(d) => format!(", {d:.3} deg from the nearest orientation they reach"),
             None => String::new(),
         };
-        Diagnostic::error(
+        let d = Diagnostic::error(
             "ik::unreachable",
             format!(
                 "tool axis ({:.6}, {:.6}, {:.6}) is out of reach of the rotaries ({}){miss}",
@@ -637,7 +638,12 @@ impl Ik {
                 "line {line} sets a rotated coordinate frame (MSYS or CSYS) that was not applied to the points; if the CAM wrote the tool axes in that frame, set `[cl_input] msys = \"apply\"` (NX MSYS) or output the path in the base frame; otherwise tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out"
             ),
             None => "tilt the tool axis less in the CAM, or fixture the part so the path is within the rotaries' limits; the block is left out".into(),
-        })
+        });
+        // How far out of reach, for naming the worst of many.
+        match miss_deg {
+            Some(deg) => d.with_magnitude(deg),
+            None => d,
+        }
     }
 
     /// Pose motion `m` needs the rotaries to flip to the other solution, `jump` degrees
