@@ -261,6 +261,39 @@ impl Lowerer {
 
     /// Lowers a line that [`Lowerer::unplain`] set aside: a command with arguments that
     /// are not plain words, or a line passed through as written.
+    /// Prusa firmware's `G80` is mesh bed levelling (its `X Y W H` words are the probed
+    /// area), not a canned-cycle cancel: under the `prusa` dialect it passes as a command,
+    /// after which the head's position is unknown (it probed the bed). `false` when the
+    /// line is not one.
+    pub(super) fn prusa_mesh_levelling(
+        &mut self,
+        text: &str,
+        span: Span,
+        toks: &[Spanned<'_>],
+        out: &mut Vec<Block>,
+    ) -> bool {
+        let is_g80 = |t: &Spanned<'_>| {
+            matches!(t.1, Tok::Word(w) if w.as_bytes()[0].eq_ignore_ascii_case(&b'G')
+                && super::words::parse_code(super::words::number_slice(w)) == Some((80, 0)))
+        };
+        if self.dialect != crate::ir::Dialect::Prusa || !toks.iter().any(is_g80) {
+            return false;
+        }
+        self.program_started = true;
+        self.pos.forget(AxisSet::ALL);
+        let mut block = Block::new(
+            span,
+            BlockKind::Command(Command {
+                text: strip_line_number_and_comments(text).into(),
+                modes: None,
+                clobbers: AxisSet::ALL,
+            }),
+        );
+        block.comments = comments_of(text, toks);
+        out.push(block);
+        true
+    }
+
     pub(super) fn lower_unplain(
         &mut self,
         text: &str,

@@ -328,7 +328,9 @@ impl Lowerer {
             out.push(self.pass_through(text, span, VerbatimReason::ControlFlow));
             return;
         }
-        if self.program_number(text, span, toks, out, diags) {
+        if self.program_number(text, span, toks, out, diags)
+            || self.prusa_mesh_levelling(text, span, toks, out)
+        {
             return;
         }
         if let Some(reason) = self.unplain(text, span.line, toks, diags) {
