@@ -158,6 +158,22 @@ impl Builder {
                 "Grbl has no subprograms: expand-subprograms runs first (it was not in the pipeline)",
             ));
         }
+        // Neither RepRapFirmware nor Grbl has canned cycles: drill them as moves, after
+        // subprograms (whose bodies may hold them) are expanded.
+        if matches!(self.preset.emit, Emit::Rrf | Emit::Grbl)
+            && !self.preset.passes.iter().any(|p| p.name == "expand-cycles")
+        {
+            let at = self
+                .preset
+                .passes
+                .iter()
+                .position(|p| p.name == "expand-subprograms");
+            let spec = PassSpec {
+                name: "expand-cycles".into(),
+                options: toml::Table::new(),
+            };
+            self.preset.passes.insert(at.map_or(0, |i| i + 1), spec);
+        }
         self.preset.resolve_flavours();
         if let Some(m) = &self.preset.machine {
             m.check()
