@@ -33,8 +33,9 @@
 //! through as written.
 //!
 //! # Options
-//! - `dwell_p_milliseconds` (default `false`): P of G82/G89 in milliseconds (Fanuc, Haas)
-//!   rather than seconds (LinuxCNC).
+//! - `dwell_p_milliseconds` (default `true`): P of G82/G89 in milliseconds (Fanuc, Haas,
+//!   RepRapFirmware) rather than seconds (LinuxCNC). Inserted by the pipeline, it is
+//!   `gcode_input.dwell_p_milliseconds`: the cycle's P counts as `G4 P` does.
 //! - `chip_break_retract` (mm, default `0.254`, LinuxCNC's 0.010 in): G73's retract.
 //! - `peck_clearance` (mm, default `0.254`): how far above the last peck G83 stops its
 //!   rapid back down.
@@ -65,7 +66,7 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Options {
-            dwell_p_milliseconds: false,
+            dwell_p_milliseconds: true,
             chip_break_retract: 0.254,
             peck_clearance: 0.254,
         }
@@ -320,14 +321,21 @@ impl ExpandCycles {
 
     /// Whether `v` is a line this pass must drill: one with a cycle code, or with axis
     /// words while a cycle is in force.
-    fn cycle_line(&self, v: &Verbatim) -> Option<Result<Words, Unreadable>> {
-        let has_cycle_code = tokens(&v.text).any(|(_, t, _)| match t {
+    fn cycle_line(&mut self, v: &Verbatim) -> Option<Result<Words, Unreadable>> {
+        let g_codes = tokens(&v.text).filter_map(|(_, t, _)| match t {
             Tok::Word(w) if w.starts_with(['G', 'g']) => {
-                let g = parse_decimal(w[1..].trim_start()).map(|v| (v * 10.0).round() as u32);
-                g.is_some_and(|g| CYCLES.contains(&g) || unexpandable(g).is_some())
+                parse_decimal(w[1..].trim_start()).map(|v| (v * 10.0).round() as u32)
             }
-            _ => false,
+            _ => None,
         });
+        let mut has_cycle_code = false;
+        for g in g_codes {
+            has_cycle_code |= CYCLES.contains(&g) || unexpandable(g).is_some();
+            // Another motion (G0-G3, probing, threading) or G80 ends the cycle.
+            if matches!(g, 0..=39 | 50..=59 | 330 | 380..=389 | 800) {
+                self.cycle.code = None;
+            }
+        }
         if has_cycle_code {
             return Some(read_words(&v.text));
         }
