@@ -196,6 +196,21 @@ fn unexpandable(code: u32) -> Option<&'static str> {
     })
 }
 
+/// `words` without the cycle codes (G80, G98, G99 and the cycles drilled here).
+fn without_cycle_codes(words: &str) -> String {
+    let rest: Vec<&str> = words
+        .split_whitespace()
+        .filter(|w| {
+            let g = w
+                .strip_prefix(['G', 'g'])
+                .and_then(parse_decimal)
+                .map(|v| (v * 10.0).round() as u32);
+            !matches!(g, Some(800 | 980 | 990)) && !g.is_some_and(|g| CYCLES.contains(&g))
+        })
+        .collect();
+    rest.join(" ")
+}
+
 /// Cycles this pass drills.
 const CYCLES: [u32; 6] = [730, 810, 820, 830, 850, 890];
 
@@ -232,6 +247,11 @@ impl ExpandCycles {
                 // lines, and the axes this move leaves alone are still where they drilled.
                 self.cycle.code = None;
                 self.feed = m.feed;
+                // A G80 written beside the move (Mach3 style) rides on it.
+                let kept = without_cycle_codes(&m.extra);
+                if kept.split_whitespace().count() != m.extra.split_whitespace().count() {
+                    m.extra = kept;
+                }
                 if let Target::Joints(j) = &mut m.target
                     && !m.machine_frame
                 {
@@ -287,18 +307,7 @@ impl ExpandCycles {
         if !cycle_code {
             return true;
         }
-        let rest: Vec<&str> = c
-            .text
-            .split_whitespace()
-            .filter(|w| {
-                let g = w
-                    .strip_prefix(['G', 'g'])
-                    .and_then(parse_decimal)
-                    .map(|v| (v * 10.0).round() as u32);
-                !matches!(g, Some(800 | 980 | 990)) && !g.is_some_and(|g| CYCLES.contains(&g))
-            })
-            .collect();
-        c.text = rest.join(" ").into();
+        c.text = without_cycle_codes(&c.text).into();
         !c.text.is_empty()
     }
 
@@ -699,13 +708,16 @@ impl ExpandCycles {
 
     /// A move to `to` naming `written`.
     fn go(&self, kind: MotionKind, to: Joints, written: AxisSet) -> BlockKind {
+        // The cycle's moves are in the program frame and carry no other words.
+        let (target, feed) = (Target::Joints(to), self.feed);
+        let (machine_frame, extra) = (false, String::new());
         BlockKind::Motion(Motion {
             kind,
-            target: Target::Joints(to),
-            feed: self.feed,
+            target,
+            feed,
             written,
-            machine_frame: false,
-            extra: String::new(),
+            machine_frame,
+            extra,
         })
     }
 }
