@@ -435,7 +435,10 @@ fn unsupported_codes_comment_error_or_keep() {
         Preset::default(),
     );
     assert!(errors(&diags).is_empty(), "{diags:?}");
-    assert!(text.contains("G1 Z-1 F50\n") && !text.contains("G8"), "{text}");
+    assert!(
+        text.contains("G1 Z-1 F50\n") && !text.contains("G8"),
+        "{text}"
+    );
     // A build with M7.
     let (text, diags) = run_toml(src, "[grbl]\nm7 = true\n");
     assert!(text.contains("\nM7\n"), "{text}");

@@ -338,12 +338,25 @@ impl ExpandCycles {
             _ => None,
         });
         let mut has_cycle_code = false;
+        let mut refused = None;
         for g in g_codes {
-            has_cycle_code |= CYCLES.contains(&g) || unexpandable(g).is_some();
+            has_cycle_code |= CYCLES.contains(&g);
+            refused = refused.or(unexpandable(g).map(|why| (g, why)));
             // Another motion (G0-G3, probing, threading) or G80 ends the cycle.
             if matches!(g, 0..=39 | 50..=59 | 330 | 380..=389 | 800) {
                 self.cycle.code = None;
             }
+        }
+        if let Some((g, why)) = refused {
+            self.cycle.code = None;
+            return Some(Err(Unreadable {
+                message: format!(
+                    "G{} cannot be drilled as G0/G1 moves: {why}",
+                    g as f64 / 10.0
+                ),
+                at: (0, v.text.len()),
+                help: "leave this cycle to a controller that has it (--emit gcode), or write its moves out in the CAM",
+            }));
         }
         if has_cycle_code {
             return Some(read_words(&v.text));
@@ -395,29 +408,13 @@ impl ExpandCycles {
                 980 => self.initial_return = true,
                 990 => self.initial_return = false,
                 g if CYCLES.contains(&g) => self.start_cycle(g, &words),
-                g => {
-                    if let Some(why) = unexpandable(g) {
-                        self.cycle.code = None;
-                        let msg = format!(
-                            "G{} cannot be drilled as G0/G1 moves: {why}",
-                            g as f64 / 10.0
-                        );
-                        Self::error(
-                            out,
-                            v,
-                            span,
-                            whole,
-                            msg,
-                            "leave this cycle to a controller that has it (--emit gcode), or write its moves out in the CAM",
-                        );
-                        return false;
-                    }
-                }
+                _ => {}
             }
         }
-        if self.cycle.code.is_some() && words.g.iter().all(|g| !CYCLES.contains(g)) {
+        if let Some(code) = self.cycle.code
+            && words.g.iter().all(|g| !CYCLES.contains(g))
+        {
             // A continuation line: its R, Z, Q, P update the cycle in force.
-            let code = self.cycle.code.unwrap_or(810);
             self.start_cycle(code, &words);
         }
         match self.plan(v, &words) {
