@@ -170,6 +170,26 @@ impl Builder {
                 "Grbl has no subprograms: expand-subprograms runs first (it was not in the pipeline)",
             ));
         }
+        // Neither RepRapFirmware nor Grbl has canned cycles: drill them as moves, after
+        // subprograms (whose bodies may hold them) are expanded.
+        if matches!(self.preset.emit, Emit::Rrf | Emit::Grbl)
+            && !self.preset.passes.iter().any(|p| p.name == "expand-cycles")
+        {
+            let at = self
+                .preset
+                .passes
+                .iter()
+                .position(|p| p.name == "expand-subprograms");
+            // The cycles' dwell P counts in the unit G4 P is read in.
+            let ms = self.preset.gcode_input.dwell_p_milliseconds;
+            let mut options = toml::Table::new();
+            options.insert("dwell_p_milliseconds".into(), ms.into());
+            let spec = PassSpec {
+                name: "expand-cycles".into(),
+                options,
+            };
+            self.preset.passes.insert(at.map_or(0, |i| i + 1), spec);
+        }
         self.preset.resolve_flavours();
         if let Some(m) = &self.preset.machine {
             m.check()

@@ -6,6 +6,7 @@
 
 pub mod backlash;
 pub mod densify;
+pub mod expand_cycles;
 pub mod expand_subprograms;
 pub mod extrude_rate;
 pub mod feed;
@@ -229,6 +230,7 @@ pub const REGISTRY: &[PassInfo] = &[
     heightmap::INFO,
     backlash::INFO,
     expand_subprograms::INFO,
+    expand_cycles::INFO,
     mirror::INFO,
     order_paths::INFO,
     transform::INFO,

@@ -222,9 +222,14 @@ impl Lowerer {
                 (2, 0) => fx.motion = Some(MotionMode::Arc { clockwise: true }),
                 (3, 0) => fx.motion = Some(MotionMode::Arc { clockwise: false }),
                 // G80 cancels a canned cycle; Mach3 programs also write it beside G0.
+                // Ending a cycle it is printed, so a controller with cycles leaves them
+                // (`expand-cycles` drops it for controllers without).
                 (80, 0) => {
-                    if self.motion == MotionMode::Unsupported && fx.motion.is_none() {
-                        fx.motion = Some(MotionMode::None);
+                    if self.motion == MotionMode::Unsupported {
+                        fx.other_g.push(w);
+                        if fx.motion.is_none() {
+                            fx.motion = Some(MotionMode::None);
+                        }
                     }
                 }
                 (17, 0) => self.plane = Plane::XY,

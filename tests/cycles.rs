@@ -1,0 +1,400 @@
+//! Canned cycles: drilled as G0/G1/G4 moves for RepRapFirmware and Grbl (`expand-cycles`),
+//! printed as written, `G80` included, for LinuxCNC (`--emit gcode`).
+//!
+//! The printed programs are re-read here independently: each G0/G1/G4 line's words are
+//! taken from the text and followed in absolute millimetres, and the moves are grouped by
+//! hole (a group starts where X or Y moves). Each hole is then checked against what the
+//! cycle programs: its X Y, the depth it reaches, the Z of each feed stroke (the pecks),
+//! the dwells and the height it retracts to.
+
+use std::io::Write;
+use std::process::{Command, Output, Stdio};
+
+/// Runs `ncpost run --emit <emit> -` on `program`, with `extra` arguments.
+fn run(program: &str, emit: &str, extra: &[&str]) -> Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ncpost"))
+        .args(["run", "--emit", emit])
+        .args(extra)
+        .arg("-")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("ncpost runs");
+    child
+        .stdin
+        .take()
+        .expect("stdin")
+        .write_all(program.as_bytes())
+        .expect("program written");
+    child.wait_with_output().expect("ncpost ends")
+}
+
+/// The printed program of a run that must succeed.
+fn succeeded(out: &Output) -> String {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    text(out)
+}
+
+fn text(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// One step of a printed program: a move (G0 or G1) to X Y Z, or a dwell.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Step {
+    Move { rapid: bool, z: f64, f: Option<f64> },
+    Dwell(f64),
+}
+
+/// The moves made at one X Y: where the tool came over the hole, and what it did there.
+#[derive(Debug, Clone, PartialEq)]
+struct Hole {
+    x: f64,
+    y: f64,
+    /// The Z the tool moved over the hole at.
+    approach_z: f64,
+    steps: Vec<Step>,
+}
+
+impl Hole {
+    fn deepest(&self) -> f64 {
+        self.zs().fold(f64::INFINITY, f64::min)
+    }
+    fn zs(&self) -> impl Iterator<Item = f64> + '_ {
+        self.steps.iter().filter_map(|s| match s {
+            Step::Move { z, .. } => Some(*z),
+            Step::Dwell(_) => None,
+        })
+    }
+    /// The Z the tool is at when it leaves the hole.
+    fn retract(&self) -> f64 {
+        self.zs().last().unwrap_or(self.approach_z)
+    }
+    /// The Z each feed (G1) stroke ends at.
+    fn feed_ends(&self) -> Vec<f64> {
+        self.steps
+            .iter()
+            .filter_map(|s| match s {
+                Step::Move {
+                    rapid: false, z, ..
+                } => Some(*z),
+                _ => None,
+            })
+            .collect()
+    }
+    fn dwells(&self) -> Vec<f64> {
+        self.steps
+            .iter()
+            .filter_map(|s| match s {
+                Step::Dwell(d) => Some(*d),
+                _ => None,
+            })
+            .collect()
+    }
+    fn last_feed_rate(&self) -> Option<f64> {
+        self.steps.iter().rev().find_map(|s| match s {
+            Step::Move { f, .. } => *f,
+            _ => None,
+        })
+    }
+}
+
+/// The number after `letter` in the words of `line`.
+fn word(line: &str, letter: char) -> Option<f64> {
+    line.split_whitespace()
+        .find_map(|w| w.strip_prefix(letter))
+        .map(|v| v.parse().expect("a number"))
+}
+
+/// Re-reads a printed RepRapFirmware or Grbl program (absolute mm; G4 P in ms for RRF,
+/// seconds for Grbl) into holes. Moves before the first X Y move of a cycle are in the
+/// first group.
+fn holes(printed: &str, dwell_scale: f64) -> Vec<Hole> {
+    let (mut x, mut y, mut z) = (f64::NAN, f64::NAN, f64::NAN);
+    let mut feed = None;
+    let mut out: Vec<Hole> = Vec::new();
+    for line in printed.lines() {
+        let line = line.split(';').next().unwrap_or("").trim();
+        let first = line.split_whitespace().next().unwrap_or("");
+        assert!(
+            !line.contains("G91") && !line.contains("G20"),
+            "the reader follows G90 G21 only: {line}"
+        );
+        match first {
+            "G0" | "G1" => {
+                let (nx, ny) = (word(line, 'X').unwrap_or(x), word(line, 'Y').unwrap_or(y));
+                z = word(line, 'Z').unwrap_or(z);
+                if let Some(f) = word(line, 'F') {
+                    feed = Some(f);
+                }
+                if nx != x || ny != y {
+                    (x, y) = (nx, ny);
+                    out.push(Hole {
+                        x,
+                        y,
+                        approach_z: z,
+                        steps: Vec::new(),
+                    });
+                } else if let Some(h) = out.last_mut() {
+                    h.steps.push(Step::Move {
+                        rapid: first == "G0",
+                        z,
+                        f: if first == "G1" { feed } else { None },
+                    });
+                }
+            }
+            "G4" => {
+                let p = word(line, 'P').or(word(line, 'S').map(|s| s * 1000.0));
+                let d = p.expect("G4 with P") * dwell_scale;
+                out.last_mut()
+                    .expect("a dwell over a hole")
+                    .steps
+                    .push(Step::Dwell(d));
+            }
+            _ => {}
+        }
+    }
+    out
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() < 1e-3
+}
+
+fn assert_close_all(got: &[f64], want: &[f64], what: &str) {
+    assert!(
+        got.len() == want.len() && got.iter().zip(want).all(|(a, b)| close(*a, *b)),
+        "{what}: got {got:?}, want {want:?}"
+    );
+}
+
+/// No G73/G8x/G98/G99 word is left in a program drilled as moves.
+fn assert_no_cycle_codes(printed: &str) {
+    for line in printed.lines() {
+        for w in line.split(';').next().unwrap_or("").split_whitespace() {
+            let g = w.strip_prefix('G').and_then(|n| n.parse::<f64>().ok());
+            assert!(
+                !g.is_some_and(|g| g == 73.0
+                    || (80.0..=89.0).contains(&g)
+                    || g == 98.0
+                    || g == 99.0),
+                "cycle code left in: {line}"
+            );
+        }
+    }
+}
+
+const DRILLS: &str = "\
+G21 G90 G17
+G0 X0 Y0 Z10
+G98 G81 X5 Y5 Z-3 R2 F100
+X10
+G99 G83 X20 Y5 Z-7 R1 Q3 F120
+Y15
+G80
+G0 X0 Y0 Z20
+G98 G82 X1 Y1 Z-1 R2 P500 F90
+G73 X30 Y30 Z-2 R1 Q0.8 F60
+G85 X40 Y40 Z-4 R1 F50
+G89 X50 Y50 Z-5 R1 P250 F40
+G80 G0 X0 Y0 (Mach3 writes G80 beside the move)
+M30
+";
+
+#[test]
+fn cycles_are_drilled_as_moves_for_reprapfirmware() {
+    let out = run(DRILLS, "rrf", &[]);
+    let printed = succeeded(&out);
+    assert_no_cycle_codes(&printed);
+    let h = holes(&printed, 1.0 / 1000.0);
+    // The first group is the start position; then one group per hole, then the park.
+    let xy: Vec<(f64, f64)> = h.iter().map(|h| (h.x, h.y)).collect();
+    assert_eq!(
+        xy,
+        [
+            (0.0, 0.0),
+            (5.0, 5.0),
+            (10.0, 5.0),
+            (20.0, 5.0),
+            (20.0, 15.0),
+            (0.0, 0.0),
+            (1.0, 1.0),
+            (30.0, 30.0),
+            (40.0, 40.0),
+            (50.0, 50.0),
+            (0.0, 0.0)
+        ]
+    );
+    // G81, G98: from Z10 to R2, feed to -3, back to the initial level 10.
+    for hole in &h[1..3] {
+        assert_eq!(hole.approach_z, 10.0);
+        assert_eq!(hole.deepest(), -3.0);
+        assert_close_all(&hole.feed_ends(), &[-3.0], "G81 feeds");
+        assert_eq!(hole.retract(), 10.0);
+        assert_eq!(hole.last_feed_rate(), Some(100.0));
+    }
+    // G83, G99: pecks of Q3 from R1 to -7, each retracted to R, and back to R.
+    assert_eq!(
+        h[3].approach_z, 10.0,
+        "the first G99 hole is approached at the initial level"
+    );
+    assert_eq!(h[4].approach_z, 1.0, "G99 leaves the tool at R");
+    for hole in &h[3..5] {
+        assert_close_all(&hole.feed_ends(), &[-2.0, -5.0, -7.0], "G83 pecks");
+        let rapids_up = hole
+            .steps
+            .iter()
+            .filter(|s| matches!(s, Step::Move { rapid: true, z, .. } if *z == 1.0))
+            .count();
+        assert!(
+            rapids_up >= 3,
+            "G83 retracts to R between pecks: {:?}",
+            hole.steps
+        );
+        assert_eq!(hole.retract(), 1.0);
+        assert_eq!(hole.last_feed_rate(), Some(120.0));
+    }
+    // G82, G98 from Z20: dwell P500 (ms, as G4 P reads), back to 20.
+    assert_eq!(h[6].approach_z, 20.0);
+    assert_eq!(h[6].deepest(), -1.0);
+    assert_close_all(&h[6].dwells(), &[0.5], "G82 dwell");
+    assert_eq!(h[6].retract(), 20.0);
+    // G73: chip breaks of 0.254 between pecks of 0.8 down to -2, then back to 20.
+    assert_close_all(&h[7].feed_ends(), &[0.2, -0.6, -1.4, -2.0], "G73 pecks");
+    let breaks: Vec<f64> = h[7]
+        .steps
+        .windows(2)
+        .filter_map(|w| match w {
+            [
+                Step::Move {
+                    rapid: false, z: a, ..
+                },
+                Step::Move {
+                    rapid: true, z: b, ..
+                },
+            ] if *b < 1.0 => Some(b - a),
+            _ => None,
+        })
+        .collect();
+    assert_close_all(&breaks, &[0.254, 0.254, 0.254], "G73 chip breaks");
+    assert_eq!(h[7].retract(), 20.0);
+    // G85 feeds in and out (the feed out goes to the retract height, G98: 20).
+    assert_close_all(&h[8].feed_ends(), &[-4.0, 20.0], "G85 feeds");
+    // G89: feed in, dwell 0.25 s, feed out.
+    assert_close_all(&h[9].feed_ends(), &[-5.0, 20.0], "G89 feeds");
+    assert_close_all(&h[9].dwells(), &[0.25], "G89 dwell");
+    // Every X Y move is made above the R plane of its hole.
+    assert!(h.iter().all(|h| h.approach_z >= 1.0), "{h:?}");
+}
+
+#[test]
+fn incremental_repeats_in_inches_are_drilled_for_grbl() {
+    let program = "\
+G20 G90 G17
+G0 X0 Y0 Z1
+G91 G99 G81 X1 Z-0.5 R-0.5 L3 F5
+G90 G80
+M30
+";
+    let out = run(program, "grbl", &[]);
+    let printed = succeeded(&out);
+    assert_no_cycle_codes(&printed);
+    // The reader takes G21 only: Grbl output is in millimetres.
+    let h = holes(&printed, 1.0);
+    let xs: Vec<f64> = h[1..].iter().map(|h| h.x).collect();
+    assert_close_all(&xs, &[25.4, 50.8, 76.2], "L3 holes 1 in apart");
+    for hole in &h[1..] {
+        // R is 0.5 in below the start (Z1 in), Z 0.5 in below R.
+        assert!(close(hole.deepest(), 0.0), "{hole:?}");
+        assert!(close(hole.retract(), 12.7), "{hole:?}");
+        assert!(
+            close(hole.last_feed_rate().unwrap_or(0.0), 127.0),
+            "{hole:?}"
+        );
+    }
+    assert!(close(h[1].approach_z, 25.4));
+}
+
+#[test]
+fn linuxcnc_output_keeps_the_cycles_and_g80() {
+    let out = run(DRILLS, "gcode", &[]);
+    assert!(out.status.success());
+    let printed = text(&out);
+    for line in [
+        "G98 G81 X5 Y5 Z-3 R2 F100",
+        "X10",
+        "G99 G83 X20 Y5 Z-7 R1 Q3 F120",
+        "G89 X50 Y50 Z-5 R1 P250 F40",
+    ] {
+        assert!(
+            printed.lines().any(|l| l == line),
+            "{line} missing:\n{printed}"
+        );
+    }
+    let g80 = |l: &str| l.split_whitespace().any(|w| w == "G80");
+    assert_eq!(printed.lines().filter(|l| g80(l)).count(), 2, "{printed}");
+}
+
+#[test]
+fn tapping_and_missing_words_are_errors_at_their_line() {
+    let tap = "G21 G90\nG0 X0 Y0 Z10\nG84 X1 Y1 Z-5 R2 F100\nG80\n";
+    let out = run(tap, "rrf", &[]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("G84 cannot be drilled") && err.contains(":3:"),
+        "{err}"
+    );
+    let no_r = "G21 G90\nG0 X0 Y0 Z10\nG81 X1 Y1 Z-5 F100\nG80\n";
+    let err = String::from_utf8_lossy(&run(no_r, "rrf", &[]).stderr).into_owned();
+    assert!(
+        err.contains("no R word") && err.contains(":3:") && err.contains("help"),
+        "{err}"
+    );
+    let unknown_z = "G21 G90\nG28\nG81 X1 Y1 Z-5 R2 F100\nG80\n";
+    let err = String::from_utf8_lossy(&run(unknown_z, "rrf", &[]).stderr).into_owned();
+    assert!(
+        err.contains("Z position before the canned cycle is not known"),
+        "{err}"
+    );
+    let peck = "G21 G90\nG0 X0 Y0 Z10\nG83 X1 Y1 Z-5 R2 F100\nG80\n";
+    let err = String::from_utf8_lossy(&run(peck, "rrf", &[]).stderr).into_owned();
+    assert!(err.contains("peck depth Q"), "{err}");
+}
+
+/// LinuxCNC's own test program (shared corpus, see the fixture's first line): a G81 in
+/// a subprogram called three times, with a G91 jog before it.
+#[test]
+fn linuxcnc_subprogram_cycle_is_drilled_where_the_position_is_known() {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/gcode/linuxcnc_m98m99_01_basics.ngc"
+    );
+    let program = std::fs::read_to_string(path).expect("fixture");
+    let out = run(&program, "gcode", &[]);
+    assert!(
+        text(&out).contains("G90 G99 G81 Z-1.0 R0.25"),
+        "kept for LinuxCNC"
+    );
+    // For RepRapFirmware the body is inlined; the first call drills at X1 (the jog from
+    // X0), to Z-1 at F40, back to R0.25. The next calls jog relative to a position the
+    // frontend no longer follows: their cycles are errors, not wrong holes.
+    let out = run(&program, "rrf", &["--pass", "expand-subprograms"]);
+    let printed = text(&out);
+    // The reader follows absolute moves: up to the jog it cannot resolve.
+    let resolved = printed.split("G91").next().unwrap_or("");
+    let h = holes(resolved, 1.0 / 1000.0);
+    let hole = h.iter().find(|h| h.x == 1.0).expect("hole at X1");
+    assert_eq!(hole.deepest(), -1.0);
+    assert_eq!(hole.retract(), 0.25);
+    assert_eq!(hole.last_feed_rate(), Some(40.0));
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("expand-cycles::cycle") && err.contains(":11:"),
+        "{err}"
+    );
+    assert!(!printed.contains("G81") || err.contains("passed through as written"));
+}
