@@ -425,7 +425,8 @@ fn speed_cap_only_near_the_closest_approach() {
 #[test]
 fn e_total_is_exact_over_the_real_layer_output_text() {
     let mut preset = Preset::builtin("polar-printer").expect("preset");
-    preset.passes[0].options.insert(
+    let polar_ik = preset.passes.iter_mut().find(|p| p.name == "polar-ik");
+    polar_ik.expect("polar-ik").options.insert(
         "center".into(),
         toml::Value::try_from([100.0, 90.0]).expect("toml"),
     );
@@ -552,20 +553,20 @@ fn preset_loads_and_runs_end_to_end() {
     assert_eq!(p.origin_policy(), OriginPolicy::RotateInPlace);
     assert_eq!(p.valve.open_command, "M42 P0 S1");
     let names: Vec<&str> = preset.passes.iter().map(|s| s.name.as_str()).collect();
-    // The final order is polar-ik, valve-lookahead, extrude-rate, machine-settings,
+    // The final order is machine-settings, polar-ik, valve-lookahead, extrude-rate,
     // verify.
     let order: Vec<&str> = [
+        "machine-settings",
         "polar-ik",
         "valve-lookahead",
         "extrude-rate",
-        "machine-settings",
         "verify",
     ]
     .into_iter()
     .filter(|n| names.contains(n))
     .collect();
     assert_eq!(names, order);
-    assert_eq!(names.first(), Some(&"polar-ik"));
+    assert_eq!(names.get(1), Some(&"polar-ik"));
     assert!(names.contains(&"extrude-rate"));
     let text = include_str!("../passes/polar-printer.toml");
     assert!(text.matches("# assumption:").count() >= 5);
