@@ -248,9 +248,11 @@ impl ExpandCycles {
                 self.cycle.code = None;
                 self.feed = m.feed;
                 // A G80 written beside the move (Mach3 style) rides on it.
-                let kept = without_cycle_codes(&m.extra);
-                if kept.split_whitespace().count() != m.extra.split_whitespace().count() {
-                    m.extra = kept;
+                if !m.extra.is_empty() {
+                    let kept = without_cycle_codes(&m.extra);
+                    if kept.split_whitespace().count() != m.extra.split_whitespace().count() {
+                        m.extra = kept;
+                    }
                 }
                 if let Target::Joints(j) = &mut m.target
                     && !m.machine_frame

@@ -21,12 +21,13 @@ impl<'a> Args<'a> {
     /// error on every move downstream.
     pub(super) fn number(&self, a: &Arg) -> Result<f64, Diagnostic> {
         let text = self.text(a);
-        let shown = crate::num::range::shown(text);
+        // The token as a message shows it, only when there is a message.
+        let shown = || crate::num::range::shown(text);
         if a.kind != ArgKind::Number {
             return Err(self.stmt.locate(
                 Diagnostic::error(
                     "cl::bad-number",
-                    format!("expected a number, found `{shown}`"),
+                    format!("expected a number, found `{}`", shown()),
                 )
                 .with_label("not a number")
                 .with_help("write a decimal number such as `12.5`, `-.5` or `1.E-3`"),
@@ -37,7 +38,7 @@ impl<'a> Args<'a> {
         match crate::num::parse_decimal(text) {
             Some(v) if crate::num::range::in_range(v) => Ok(v),
             _ => Err(self.stmt.locate(
-                Diagnostic::error("cl::bad-number", format!("`{shown}` is out of range"))
+                Diagnostic::error("cl::bad-number", format!("`{}` is out of range", shown()))
                     .with_label("too large")
                     .with_help(format!(
                         "CL values must be finite and at most {:e} in size; check the number's exponent and digits",
