@@ -456,40 +456,69 @@ fn ik_flip_retracts_rotates_and_plunges() {
     let m = machine("emoc-x5");
     let (out, diags) = run(
         "ik",
-        "on_flip = \"retract\"\nretract_distance = 15.0",
+        "on_flip = \"retract\"\nretract_distance = 15.0\nclearance = 150.0",
         Some(&m),
         flip_program(&m),
     );
     assert_eq!(codes(&diags), vec!["ik::retract"]);
     assert_eq!(diags[0].severity, Severity::Warning);
-    assert_eq!(out.len(), 5);
+    assert_eq!(out.len(), 8);
     assert!(out[2..].iter().all(|b| b.span.line == 3));
     let kinds: Vec<MotionKind> = out.iter().map(|b| motion(b).kind).collect();
-    assert_eq!(
-        kinds[2..],
-        [MotionKind::Linear, MotionKind::Rapid, MotionKind::Linear]
-    );
-    let before = fk(&m, &joints_of(&out[1]));
-    let retract = fk(&m, &joints_of(&out[2]));
-    let turn = fk(&m, &joints_of(&out[3]));
-    let plunge = fk(&m, &joints_of(&out[4]));
+    use MotionKind::{Linear, Rapid};
+    assert_eq!(kinds[2..], [Linear, Rapid, Rapid, Rapid, Rapid, Linear]);
+    let j: Vec<Joints> = out.iter().map(joints_of).collect();
+    let xyz = |k: usize| [Axis::X, Axis::Y, Axis::Z].map(|a| j[k].get(a).expect("known"));
+    let before = fk(&m, &j[1]);
+    let retract = fk(&m, &j[2]);
     let new_axis = emoc_axis(-95.0, 0.0);
     let new_tip = Point3::new(0.0, 14.0, 30.0);
     // (a) straight up the old tool axis, orientation unchanged.
     assert!((retract.tip - (before.tip + before.axis.into_inner() * 15.0)).norm() < 1e-9);
     assert!(axis_angle_deg(&retract.axis, &before.axis) < 1e-9);
-    assert_eq!(ac(&joints_of(&out[2])), ac(&joints_of(&out[1])));
-    // (b) turned to the new orientation above the new point.
-    assert!((turn.tip - (new_tip + new_axis.into_inner() * 15.0)).norm() < 1e-9);
-    assert!(axis_angle_deg(&turn.axis, &new_axis) < 1e-9);
-    let (a, c) = ac(&joints_of(&out[3]));
+    assert_eq!(ac(&j[2]), ac(&j[1]));
+    // (b) Z alone up to the clearance.
+    assert_eq!(ac(&j[3]), ac(&j[2]));
+    assert_eq!(xyz(3)[..2], xyz(2)[..2]);
+    assert_eq!(xyz(3)[2], 150.0);
+    // (c) the rotaries alone turn, to the other solution.
+    assert_eq!(xyz(4), xyz(3));
+    let (a, c) = ac(&j[4]);
     assert!((a - 95.0).abs() < 1e-9 && (c.abs() - 180.0).abs() < 1e-9);
-    // (c) down the new tool axis onto the target, at the block's feed.
+    // (d) across at the clearance to the new point's X and Y.
+    assert_eq!(ac(&j[5]), (a, c));
+    assert_eq!(xyz(5)[2], 150.0);
+    assert_eq!(xyz(5)[..2], xyz(6)[..2]);
+    // (e) down to 15 mm above the new point along the new tool axis.
+    let lowered = fk(&m, &j[6]);
+    assert!((lowered.tip - (new_tip + new_axis.into_inner() * 15.0)).norm() < 1e-9);
+    assert!(axis_angle_deg(&lowered.axis, &new_axis) < 1e-9);
+    // (f) the block's move plunges down the new tool axis onto the target, at its feed.
+    let plunge = fk(&m, &j[7]);
     assert!((plunge.tip - new_tip).norm() < 1e-9);
     assert!(axis_angle_deg(&plunge.axis, &new_axis) < 1e-9);
-    assert_eq!(ac(&joints_of(&out[4])), (a, c));
-    assert_eq!(motion(&out[4]).feed, feed());
+    assert_eq!(ac(&j[7]), (a, c));
+    assert_eq!(motion(&out[7]).feed, feed());
     assert_eq!(motion(&out[2]).feed, feed());
+}
+
+#[test]
+fn ik_flip_without_a_safe_height_is_not_retracted() {
+    // No clearance and no Z travel (the preset's would be the safe height): turning the
+    // table at the retract point could sweep
+    // the part into the tool, so the flip stays an error that says what is missing.
+    let mut m = machine("emoc-x5");
+    m.linear = None;
+    let (_, diags) = run("ik", "on_flip = \"retract\"", Some(&m), flip_program(&m));
+    assert_eq!(codes(&diags), vec!["ik::flip"]);
+    assert!(
+        diags[0]
+            .help
+            .as_deref()
+            .is_some_and(|h| h.contains("clearance")),
+        "{:?}",
+        diags[0].help
+    );
 }
 
 #[test]

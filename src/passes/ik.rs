@@ -76,6 +76,11 @@ pub struct Options {
     /// its branch through, while a branch change (about 180 degrees of the cyclic axis)
     /// is caught.
     pub max_cutting_jump: f64,
+    /// The machine Z (mm, the frame the joints are in) a flip lifts to before the
+    /// rotaries turn: high enough that the part and its fixture clear the tool while
+    /// the table or head swings. Without it, the top of the machine's Z travel; without
+    /// either, a flip cannot be retracted safely and stays the error `ik::flip`.
+    pub clearance: Option<f64>,
 }
 
 impl Default for Options {
@@ -86,6 +91,7 @@ impl Default for Options {
             on_flip: OnFlip::Error,
             retract_distance: 20.0,
             max_cutting_jump: 90.0,
+            clearance: None,
         }
     }
 }
@@ -102,6 +108,8 @@ impl Options {
             "retract_distance must be a positive number of millimetres"
         } else if !(self.max_cutting_jump.is_finite() && self.max_cutting_jump > 0.0) {
             "max_cutting_jump must be a positive number of degrees"
+        } else if self.clearance.is_some_and(|c| !c.is_finite()) {
+            "clearance must be a number of millimetres"
         } else {
             return Ok(());
         };
@@ -673,12 +681,19 @@ impl Ik {
                 })
             })
             .unwrap_or_else(|| "the continuous solution is out of limits".into());
-        let (OnFlip::Retract, Some((xyz0, angles0))) = (self.options.on_flip, self.prev_five())
+        let safe_z = self
+            .options
+            .clearance
+            .or_else(|| self.machine.limits(Axis::Z).map(|(_, hi)| hi));
+        let (OnFlip::Retract, Some(start), Some(safe_z)) =
+            (self.options.on_flip, self.prev_five(), safe_z)
         else {
-            let help = if self.options.on_flip == OnFlip::Retract {
+            let help = if self.options.on_flip != OnFlip::Retract {
+                "set `on_flip = \"retract\"` in the preset's ik options to retract, rotate and re-engage".to_string()
+            } else if self.prev_five().is_none() {
                 "the position before this block is not known, so there is nothing to retract from; move to a known pose first".to_string()
             } else {
-                "set `on_flip = \"retract\"` in the preset's ik options to retract, rotate and re-engage".to_string()
+                "no safe height to turn the rotaries at: set the ik option `clearance` (machine Z, mm) or the machine's Z travel".to_string()
             };
             out.diag(
                 Diagnostic::error(
@@ -692,12 +707,52 @@ impl Ik {
             );
             return;
         };
+        let flip = Flip {
+            start,
+            choice,
+            safe_z,
+            why: out_of_range,
+            jump,
+        };
+        self.retract_turn_plunge(span, m, pose, &flip, out);
+    }
+
+    /// The moves of a flip, before the block's own move plunges onto its target: out of
+    /// the cut along the old tool axis (at the block's feed: the tool may be in the
+    /// material), straight up to the safe height, the rotaries turned with the linear
+    /// axes still, across to the new point's X and Y, and down to `retract_distance`
+    /// above it along the new tool axis. What a real post does; nothing here checks the
+    /// tool against the part or the fixture, which the safe height must clear.
+    fn retract_turn_plunge(
+        &self,
+        span: Span,
+        m: &Motion,
+        pose: &crate::ir::Pose,
+        flip: &Flip<'_>,
+        out: &mut Output<'_>,
+    ) {
+        let (xyz0, angles0) = flip.start;
         let d = self.options.retract_distance;
         let from = self.machine.forward(&xyz0, angles0);
         let up = from.tip + from.axis.into_inner() * d;
         let above = pose.tip + pose.axis.into_inner() * d;
         let retract = self.joints_at(&up, angles0, None, &Joints::NONE);
-        let turn = self.joints_at(&above, choice.angles, choice.trig, &Joints::NONE);
+        let lowered = self.joints_at(&above, flip.choice.angles, flip.choice.trig, &Joints::NONE);
+        let mut lifted = retract;
+        let z = retract.get(Axis::Z).unwrap_or(flip.safe_z).max(flip.safe_z);
+        lifted.set(Axis::Z, z);
+        let mut turned = lifted;
+        for a in self.axes {
+            if let Some(v) = lowered.get(a) {
+                turned.set(a, v);
+            }
+        }
+        let mut across = turned;
+        for a in [Axis::X, Axis::Y] {
+            if let Some(v) = lowered.get(a) {
+                across.set(a, v);
+            }
+        }
         let step = |kind: MotionKind, target: Joints| {
             Block::new(
                 span,
@@ -712,13 +767,17 @@ impl Ik {
             )
         };
         out.push(step(MotionKind::Linear, retract));
-        out.push(step(MotionKind::Rapid, turn));
+        for target in [lifted, turned, across, lowered] {
+            out.push(step(MotionKind::Rapid, target));
+        }
         out.diag(
             Diagnostic::warning(
                 "ik::retract",
                 format!(
-                    "the rotaries flip to the other solution ({out_of_range}): retracting {d} mm along the tool axis, turning {} by up to {jump:.3} deg and plunging back at the block's feed",
-                    self.ranges_moved(angles0, choice.angles)
+                    "the rotaries flip to the other solution ({}): retracting {d} mm along the tool axis, lifting to Z{z:.3}, turning {} by up to {:.3} deg with X, Y and Z still, and plunging back at the block's feed",
+                    flip.why,
+                    self.ranges_moved(angles0, flip.choice.angles),
+                    flip.jump
                 ),
             )
             .at_span(span),
@@ -737,6 +796,16 @@ impl Ik {
             moved.join(" and ")
         }
     }
+}
+
+/// A flip the pass retracts for: the joints it starts from, the solution it turns to,
+/// the safe height and why (for the warning).
+struct Flip<'c> {
+    start: ([f64; 3], [f64; 2]),
+    choice: &'c Choice,
+    safe_z: f64,
+    why: String,
+    jump: f64,
 }
 
 impl Pass for Ik {
