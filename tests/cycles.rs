@@ -398,3 +398,25 @@ fn linuxcnc_subprogram_cycle_is_drilled_where_the_position_is_known() {
     );
     assert!(!printed.contains("G81") || err.contains("passed through as written"));
 }
+
+/// Drilled cycle lines carry no "passes through unchanged" warning from the frontend: the
+/// pass takes it back on the lines it drills.
+#[test]
+fn drilled_lines_are_not_said_to_pass_through() {
+    let preset = ncpost::preset::Preset::builtin("duet-cnc").expect("preset");
+    let mut pipeline = ncpost::pipeline::Pipeline::builder()
+        .preset(preset)
+        .build()
+        .expect("builds");
+    let (mut out, mut diags) = (Vec::new(), Vec::new());
+    let src = "G0 X0 Y0 Z10\nG81 X1 Y1 Z-1 R2 F100\nX2 Y2\nG80\nG0 Z10\n";
+    pipeline
+        .run_gcode(src.as_bytes(), &mut out, &mut |d| diags.push(d))
+        .expect("runs");
+    assert!(
+        !diags.iter().any(|d| d.code == "gcode::unsupported-motion"),
+        "{diags:?}"
+    );
+    let text = String::from_utf8(out).expect("text");
+    assert!(!text.contains("G81"), "{text}");
+}

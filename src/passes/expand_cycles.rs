@@ -430,6 +430,12 @@ impl ExpandCycles {
                     self.track.update(&b);
                     out.push(b);
                 }
+                // The frontend warned that the line passes through unchanged: it could not
+                // know that this pass drills it.
+                out.diags.retain(|d| {
+                    !(d.code == "gcode::unsupported-motion"
+                        && d.location.as_ref().is_some_and(|l| l.line == span.line))
+                });
                 true
             }
             Err((at, msg, help)) => {
