@@ -272,11 +272,19 @@ impl Lowerer {
         toks: &[Spanned<'_>],
         out: &mut Vec<Block>,
     ) -> bool {
-        let is_g80 = |t: &Spanned<'_>| {
-            matches!(t.1, Tok::Word(w) if w.as_bytes()[0].eq_ignore_ascii_case(&b'G')
-                && super::words::parse_code(super::words::number_slice(w)) == Some((80, 0)))
-        };
-        if self.dialect != crate::ir::Dialect::Prusa || !toks.iter().any(is_g80) {
+        if self.dialect != crate::ir::Dialect::Prusa {
+            return false;
+        }
+        // The command word: the first word but a line number.
+        let first = toks.iter().find_map(|t| match t.1 {
+            Tok::Word(w) if !w.as_bytes()[0].eq_ignore_ascii_case(&b'N') => Some(w),
+            _ => None,
+        });
+        let is_g80 = first.is_some_and(|w| {
+            w.as_bytes()[0].eq_ignore_ascii_case(&b'G')
+                && super::words::parse_code(super::words::number_slice(w)) == Some((80, 0))
+        });
+        if !is_g80 {
             return false;
         }
         self.program_started = true;
