@@ -4,8 +4,9 @@
 //! `crate::…` reference that runs against that order, and on a circle of imports between
 //! files.
 //!
-//! Unit tests count too: a test that needs a higher layer lives in `tests/`. Comments are
-//! left out, so a doc link to a higher layer is not an import.
+//! Unit tests count too: a test that needs a higher layer lives in `tests/`. Doc comments
+//! count as well (a doc link to a higher layer ties the documentation to it); plain
+//! comments are left out.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -128,13 +129,15 @@ fn module_of(file: &Path) -> Vec<String> {
     parts
 }
 
-/// The code of a file without its comments (a doc link to a higher layer is not an
-/// import). Test modules count: a unit test that needs a higher layer belongs in
-/// `tests/`.
+/// The code of a file without its plain comments. Doc comments stay: a doc link to a
+/// higher layer makes the documentation depend on it, and a reader of the lower layer
+/// should not need the higher one. Test modules count: a unit test that needs a higher
+/// layer belongs in `tests/`.
 fn code_of(text: &str) -> String {
     let mut out = String::new();
     for line in text.lines() {
         let code = match line.find("//") {
+            Some(i) if line[i..].starts_with("///") || line[i..].starts_with("//!") => line,
             Some(i) if !line[..i].contains('"') => &line[..i],
             _ => line,
         };

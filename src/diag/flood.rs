@@ -5,7 +5,7 @@
 //! in full; the rest are counted in a [`Tally`] (how many, on which lines, and the worst
 //! when they carry a [`Diagnostic::magnitude`]), and one summary per code follows at the
 //! end of the run. The pipeline applies it where a pass reports
-//! ([`crate::passes::Output`], per batch), so that one block that gives a million warnings
+//! (the passes' output, per batch), so that one block that gives a million warnings
 //! is not stored a million times, and where the batches' diagnostics are reported, across
 //! the whole run. Both use the same limit, so the first holds back only what the second
 //! would hide as well, and the counts stay exact: a hidden diagnostic still counts as an

@@ -1,7 +1,7 @@
 //! The intermediate representation: a stream of [`Block`]s.
 //!
 //! # Invariants
-//! Every frontend produces, every pass keeps and the validator ([`crate::valid::Verifier`]) checks:
+//! Every frontend produces, every pass keeps and the validator (`valid`) checks:
 //! 1. Every block carries the [`Span`] of the source line it came from; passes that split
 //!    or add blocks give them the span of the block they stand for.
 //! 2. Motion targets are absolute, in millimetres and degrees, after modal resolution:

@@ -248,7 +248,7 @@ impl Drivers {
     }
 }
 
-/// How the controller's time is modelled (see [`crate::motion`] for the models).
+/// How the controller's time is modelled (the motion-time model, one layer up, implements them).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Timing {
@@ -288,7 +288,7 @@ pub struct Controller {
     pub acceleration: PerAxis,
     /// Stepper drivers per axis (`M584`); axes without one are left out.
     pub drivers: Drivers,
-    /// How time is modelled (`constant-velocity` or `trapezoid`; see [`crate::motion`]).
+    /// How time is modelled (`constant-velocity` or `trapezoid`).
     pub timing: Timing,
     /// Motion blocks the trapezoid model plans ahead (a firmware's queue length).
     pub lookahead: usize,

@@ -1,4 +1,4 @@
-//! Numbers and words as NC programs write them: the bottom layer, below [`crate::ir`].
+//! Numbers and words as NC programs write them: the bottom layer, below the IR.
 //!
 //! Every layer reads and prints numbers through this module: frontends read programs,
 //! passes and backends re-read the G-code text that the IR carries through unevaluated

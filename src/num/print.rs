@@ -7,7 +7,7 @@ use serde::{Deserialize, Serialize};
 
 /// Digits after the decimal point, per kind of value.
 ///
-/// What an axis gets is [`Decimals::axis`] (in [`crate::ir`], which knows the axes).
+/// What an axis gets is [`Decimals::axis`] (in the IR, which knows the axes).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Decimals {

@@ -45,9 +45,9 @@ pub struct Context<'a> {
     /// The run-wide timing model (`--timing`), overriding the controller's and the
     /// passes' own (see [`crate::motion::resolve_timing`]).
     pub timing: Option<crate::motion::Timing>,
-    /// Makes the G-code lowerer `expand-subprograms` lowers subprogram bodies with (the
-    /// pipeline's is [`crate::pipeline::gcode_relower`]; passes do not depend on the
-    /// frontends).
+    /// Makes the G-code lowerer `expand-subprograms` lowers subprogram bodies with: the
+    /// program that runs the passes supplies it, since passes do not depend on the
+    /// frontends.
     pub relower: Option<expand_subprograms::lower::Relower>,
 }
 
