@@ -1,5 +1,5 @@
 //! Firmware flavours: what a controller does with the printed words a time model depends
-//! on (how fast a `G0` runs, how a dwell's `P` is read, whether canned cycles exist).
+//! on (so far: how fast a `G0` runs).
 //!
 //! The flavour is part of the [`Controller`](super::Controller) of a machine or polar
 //! definition; a preset that names none gets the one its backend prints for (see
@@ -50,15 +50,5 @@ impl Flavour {
             Flavour::RrfFdm | Flavour::Marlin | Flavour::Klipper => RapidRule::ModalFeed,
             Flavour::RrfCnc | Flavour::Grbl | Flavour::Linuxcnc => RapidRule::MaxSpeed,
         }
-    }
-
-    /// Whether `G4 P` counts milliseconds (whole ones) rather than seconds.
-    pub fn dwell_p_milliseconds(self) -> bool {
-        !matches!(self, Flavour::Grbl | Flavour::Linuxcnc)
-    }
-
-    /// Whether the controller runs canned drilling cycles (`G81`–`G89`, `G73`).
-    pub fn has_canned_cycles(self) -> bool {
-        self == Flavour::Linuxcnc
     }
 }

@@ -91,7 +91,7 @@ use crate::ir::{Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Span};
 use crate::machine::FeedRule;
 use crate::machine::polar::{OriginPolicy, Polar};
 
-pub use geometry::{Piece, PolarPoint, arc_points, error_bound, plan};
+pub use geometry::{MAX_ARC_CHORDS, Piece, PolarPoint, arc_points, error_bound, plan};
 
 /// Who does the polar kinematics.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]

@@ -94,13 +94,7 @@ impl Lowerer {
                 );
                 return;
             }
-            out.push(self.verbatim(
-                text,
-                span,
-                VerbatimReason::Delimiter,
-                AxisSet::EMPTY,
-                Placement::Inside,
-            ));
+            out.push(self.delimiter(text, span));
             return;
         }
         if line.block_delete {

@@ -248,13 +248,7 @@ impl Lowerer {
             );
             out.push(self.pass_through(text, span, VerbatimReason::Subprogram));
         } else {
-            out.push(self.verbatim(
-                text,
-                span,
-                VerbatimReason::Delimiter,
-                AxisSet::EMPTY,
-                Placement::Inside,
-            ));
+            out.push(self.delimiter(text, span));
         }
         true
     }
@@ -287,19 +281,31 @@ impl Lowerer {
         if !is_g80 {
             return false;
         }
+        out.push(self.command_as_written(text, span, toks, AxisSet::ALL));
+        true
+    }
+
+    /// A line passed on as a command with its words as written, after which `clobbers`
+    /// are unknown.
+    fn command_as_written(
+        &mut self,
+        text: &str,
+        span: Span,
+        toks: &[Spanned<'_>],
+        clobbers: AxisSet,
+    ) -> Block {
         self.program_started = true;
-        self.pos.forget(AxisSet::ALL);
+        self.pos.forget(clobbers);
         let mut block = Block::new(
             span,
             BlockKind::Command(Command {
                 text: strip_line_number_and_comments(text).into(),
                 modes: None,
-                clobbers: AxisSet::ALL,
+                clobbers,
             }),
         );
         block.comments = comments_of(text, toks);
-        out.push(block);
-        true
+        block
     }
 
     pub(super) fn lower_unplain(
@@ -312,19 +318,8 @@ impl Lowerer {
     ) {
         match reason {
             Unplain::Command => {
-                self.program_started = true;
                 let clob = self.command_clobbers(toks);
-                self.pos.forget(clob);
-                let mut block = Block::new(
-                    span,
-                    BlockKind::Command(Command {
-                        text: strip_line_number_and_comments(text).into(),
-                        modes: None,
-                        clobbers: clob,
-                    }),
-                );
-                block.comments = comments_of(text, toks);
-                out.push(block);
+                out.push(self.command_as_written(text, span, toks, clob));
             }
             Unplain::Unevaluated => {
                 let keeps_modes = !self.apply_plain_modes(toks);

@@ -217,6 +217,18 @@ impl Lowerer {
         )
     }
 
+    /// A tape delimiter or program label (`%`, `O1000`), copied as written; it moves
+    /// nothing.
+    fn delimiter(&mut self, text: &str, span: Span) -> Block {
+        self.verbatim(
+            text,
+            span,
+            VerbatimReason::Delimiter,
+            AxisSet::EMPTY,
+            Placement::Inside,
+        )
+    }
+
     /// A line copied as written inside a construct (control flow, subprogram body) that
     /// may move anything.
     fn pass_through(&mut self, text: &str, span: Span, reason: VerbatimReason) -> Block {
