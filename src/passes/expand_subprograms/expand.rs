@@ -121,35 +121,20 @@ impl<'a> Expander<'a> {
                     Key::Oword(_) => self.reached.contains(&Reach::AllOword),
                 }
         };
+        let used = &self.used;
+        let diags = &mut self.diags;
+        let mut definition = |key: &Key, out: &mut Output<'_>| {
+            emit_definition(blocks, defs, key, keep(key), used.contains(key), diags, out);
+        };
         let mut next = def_at.iter().peekable();
         for (n, b) in expanded.into_iter().enumerate() {
-            while let Some((at, key)) = next.peek() {
-                if *at != n {
-                    break;
-                }
-                emit_definition(
-                    blocks,
-                    defs,
-                    key,
-                    keep(key),
-                    self.used.contains(key),
-                    &mut self.diags,
-                    out,
-                );
-                next.next();
+            while let Some((_, key)) = next.next_if(|(at, _)| *at == n) {
+                definition(key, out);
             }
             out.push(b);
         }
         for (_, key) in next {
-            emit_definition(
-                blocks,
-                defs,
-                key,
-                keep(key),
-                self.used.contains(key),
-                &mut self.diags,
-                out,
-            );
+            definition(key, out);
         }
         for d in self.diags {
             out.diag(d);
