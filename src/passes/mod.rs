@@ -52,6 +52,23 @@ pub struct Context<'a> {
 }
 
 impl<'a> Context<'a> {
+    /// The motion-time model a timing pass uses: the run's controller (polar, else
+    /// machine), the timing by precedence (`--timing`, then the pass's `timing`), and
+    /// rapids at `rapid_feed` mm/min where the controller's rule leaves their speed open.
+    pub fn model(
+        &self,
+        timing: Option<crate::motion::Timing>,
+        rapid_feed: f64,
+    ) -> Result<crate::motion::Model, Diagnostic> {
+        if !(rapid_feed.is_finite() && rapid_feed > 0.0) {
+            return Err(Diagnostic::settings("rapid_feed must be a positive number"));
+        }
+        Ok(
+            crate::motion::Model::for_machines(self.polar, self.machine, self.timing, timing)
+                .with_rapid_feed(rapid_feed),
+        )
+    }
+
     /// The machine, or the error a pass that needs one reports.
     pub fn require_machine(&self, pass: &str) -> Result<&'a Machine, Diagnostic> {
         self.machine.ok_or_else(|| {

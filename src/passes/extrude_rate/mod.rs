@@ -378,8 +378,7 @@ impl ExtrudeRate {
             }
         }
         let (polar_axes, cap_rate) = polar_frame(&options, ctx)?;
-        let model = Model::for_machines(ctx.polar, ctx.machine, ctx.timing, options.timing)
-            .with_rapid_feed(options.rapid_feed);
+        let model = ctx.model(options.timing, options.rapid_feed)?;
         Ok(ExtrudeRate {
             model: model.clone(),
             decimals: ctx.decimals,

@@ -352,11 +352,7 @@ impl ValveLookahead {
                 "max_lookahead must be at least 16 blocks",
             ));
         }
-        if !(options.rapid_feed.is_finite() && options.rapid_feed > 0.0) {
-            return Err(Diagnostic::settings("rapid_feed must be a positive number"));
-        }
-        let model = Model::for_machines(ctx.polar, ctx.machine, ctx.timing, options.timing)
-            .with_rapid_feed(options.rapid_feed);
+        let model = ctx.model(options.timing, options.rapid_feed)?;
         let window = match model.timing {
             Timing::ConstantVelocity => 0,
             Timing::Trapezoid => model.lookahead,
