@@ -209,12 +209,16 @@ impl Builder {
         let mut passes = Vec::new();
         for spec in &self.preset.passes {
             let mut options = spec.options.clone();
-            // expand-subprograms lowers subprogram bodies with the frontend's options.
+            // expand-subprograms lowers subprogram bodies with the frontend's options; its
+            // own `input` table changes some of them.
             if spec.name == "expand-subprograms"
-                && !options.contains_key("input")
-                && let Ok(toml::Value::Table(t)) = toml::Value::try_from(&self.preset.gcode_input)
+                && let Ok(toml::Value::Table(mut input)) =
+                    toml::Value::try_from(&self.preset.gcode_input)
             {
-                options.insert("input".into(), toml::Value::Table(t));
+                if let Some(toml::Value::Table(own)) = options.get("input") {
+                    input.extend(own.clone());
+                }
+                options.insert("input".into(), toml::Value::Table(input));
             }
             passes.push(passes::build(&spec.name, &options, &context)?);
         }
@@ -639,22 +643,25 @@ pub fn compile_str(src: &str, preset: &Preset) -> Result<String, Vec<Diagnostic>
     }
     Ok(String::from_utf8_lossy(&out).into_owned())
 }
-/// The G-code lowerer for `expand-subprograms`, made for frontend options `input`: the
-/// [`passes::Context::relower`] of every pipeline (passes do not depend on the
-/// frontends; this adapter is where they meet).
+/// The G-code lowerer for `expand-subprograms`, made for the frontend options in the
+/// table `input`: the [`passes::Context::relower`] of every pipeline (passes do not
+/// depend on the frontends; this adapter is where they meet).
 ///
 /// ```
-/// use ncpost::passes::expand_subprograms::lower::Input;
-/// let lowering = ncpost::pipeline::gcode_relower(&Input::default()).unwrap();
+/// let lowering = ncpost::pipeline::gcode_relower(&toml::Table::new()).unwrap();
 /// assert!(lowering.oword_call("o100 call").is_some());
+/// let bad: toml::Table = toml::from_str("dwell_p_seconds = true").unwrap();
+/// assert!(ncpost::pipeline::gcode_relower(&bad).is_err());
 /// ```
 pub fn gcode_relower(
-    input: &passes::expand_subprograms::lower::Input,
+    input: &toml::Table,
 ) -> Result<Box<dyn passes::expand_subprograms::lower::Lowering>, Diagnostic> {
-    let options: front::gcode::Options = toml::Value::try_from(input)
-        .map_err(|e| Diagnostic::settings(e.to_string()))?
-        .try_into()
-        .map_err(|e: toml::de::Error| Diagnostic::settings(e.message()))?;
+    let options: front::gcode::Options =
+        toml::Value::Table(input.clone())
+            .try_into()
+            .map_err(|e: toml::de::Error| {
+                Diagnostic::settings(format!("expand-subprograms input: {}", e.message()))
+            })?;
     Ok(Box::new(GcodeLowering(options)))
 }
 
