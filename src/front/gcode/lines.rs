@@ -14,7 +14,7 @@ use super::Options;
 use super::lexer::{self, Kind, Spanned};
 use super::lower::{self, Lowerer};
 use crate::diag::Diagnostic;
-use crate::front::{LineReader, RawLine};
+use crate::front::{LineReader, RawLine, content_len};
 use crate::ir::{Block, Span};
 
 /// Lines read and tokenised, waiting to be lowered.
@@ -87,15 +87,20 @@ impl Lexed {
     fn push_text(&mut self, text: &str, span: Span) {
         let start = self.text.len();
         self.text.push_str(text);
+        self.push_line(start..self.text.len(), span);
+    }
+
+    /// Adds the line whose text is already at `text` in the buffer, with its tokens.
+    fn push_line(&mut self, text: Range<usize>, span: Span) {
         let first_tok = self.toks.len();
-        self.toks
-            .extend(lexer::tokens(text).map(|(s, tok, e)| (s as u32, e as u32, tok.kind())));
+        self.toks.extend(
+            lexer::tokens(&self.text[text.clone()])
+                .map(|(s, tok, e)| (s as u32, e as u32, tok.kind())),
+        );
+        let toks = first_tok..self.toks.len();
         self.lines.push(Entry {
             span,
-            what: Line::Text {
-                text: start..self.text.len(),
-                toks: first_tok..self.toks.len(),
-            },
+            what: Line::Text { text, toks },
         });
     }
 }
@@ -103,6 +108,8 @@ impl Lexed {
 /// The reading half: lines from a buffered reader, tokenised into [`Lexed`] batches.
 pub struct Lines<R> {
     reader: LineReader<R>,
+    /// Longest line accepted, bytes.
+    max_len: usize,
     done: bool,
 }
 
@@ -111,6 +118,7 @@ impl<R: BufRead> Lines<R> {
     pub fn new(reader: R, max_line_len: usize) -> Lines<R> {
         Lines {
             reader: LineReader::new(reader, max_line_len),
+            max_len: max_line_len,
             done: false,
         }
     }
@@ -120,6 +128,9 @@ impl<R: BufRead> Lines<R> {
     pub fn read(&mut self, into: &mut Lexed, max: usize) {
         into.clear();
         while into.len() < max.max(1) && !self.done {
+            if self.take_whole_lines(into, max) {
+                continue;
+            }
             let (raw, span) = match self.reader.next_line() {
                 Ok(Some(line)) => line,
                 Ok(None) => {
@@ -155,6 +166,59 @@ impl<R: BufRead> Lines<R> {
     /// Bytes read so far.
     pub fn bytes_read(&self) -> u64 {
         self.reader.bytes_read()
+    }
+
+    /// Takes the lines that lie whole in the reader's buffer (up to `max` lines in
+    /// `into`) at once: one copy of their bytes and one UTF-8 check for all. False when
+    /// not one line could be taken so: the next line then goes alone, by
+    /// [`LineReader::next_line`] (a line over the limit or across the buffer's end, the
+    /// last line without its newline, a line that is not UTF-8, a read error).
+    fn take_whole_lines(&mut self, into: &mut Lexed, max: usize) -> bool {
+        let max_len = self.max_len;
+        let Ok((chunk, (offset, line))) = self.reader.buffered() else {
+            return false;
+        };
+        let want = max.saturating_sub(into.len());
+        // The byte after each whole line's newline, and its content length.
+        let (mut end, mut count) = (0, 0);
+        for nl in memchr::memchr_iter(b'\n', chunk).take(want) {
+            if content_len(chunk, nl) - end > max_len {
+                break;
+            }
+            end = nl + 1;
+            count += 1;
+        }
+        let text = match std::str::from_utf8(&chunk[..end]) {
+            Ok(text) => text,
+            Err(e) => {
+                // Only the lines before the first bad byte.
+                let valid = &chunk[..e.valid_up_to()];
+                end = memchr::memrchr(b'\n', valid).map_or(0, |i| i + 1);
+                count = memchr::memchr_iter(b'\n', &chunk[..end]).count();
+                // Whole lines of valid UTF-8: the check cannot fail.
+                std::str::from_utf8(&chunk[..end]).unwrap_or_default()
+            }
+        };
+        if count == 0 {
+            return false;
+        }
+        let base = into.text.len();
+        into.text.push_str(text);
+        let (mut start, mut offset, mut line) = (0, offset, line);
+        for nl in memchr::memchr_iter(b'\n', &chunk[..end]) {
+            let content = content_len(chunk, nl) - start;
+            line += 1;
+            let span = Span {
+                offset,
+                len: content as u32,
+                line,
+            };
+            into.push_line(base + start..base + start + content, span);
+            offset += (nl + 1 - start) as u64;
+            start = nl + 1;
+        }
+        self.reader.skip_lines(end, count as u32);
+        true
     }
 }
 
@@ -287,4 +351,94 @@ fn too_long(span: Span, limit: usize) -> Diagnostic {
         "this is not G-code a controller accepts; check that the file is not binary or \
          missing its line breaks",
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::strategy::Strategy;
+
+    /// What [`LineReader::next_line`] gives, line by line, in the form a batch holds.
+    fn one_by_one(bytes: &[u8], cap: usize, max_len: usize) -> Vec<(Span, String)> {
+        let mut r = LineReader::new(std::io::BufReader::with_capacity(cap, bytes), max_len);
+        let mut out = Vec::new();
+        while let Ok(Some((raw, span))) = r.next_line() {
+            let text = match raw {
+                RawLine::Text(t) => format!("text {t}"),
+                RawLine::TooLong => "too long".to_string(),
+                RawLine::NotUtf8 { valid_up_to, lossy } => format!("bad {valid_up_to} {lossy}"),
+            };
+            out.push((span, text));
+        }
+        out
+    }
+
+    /// What [`Lines::read`] batches hold, in the same form, and the tokens of each text
+    /// line against the lexer's.
+    fn batched(bytes: &[u8], cap: usize, max_len: usize, batch: usize) -> Vec<(Span, String)> {
+        let mut lines = Lines::new(std::io::BufReader::with_capacity(cap, bytes), max_len);
+        let mut lexed = Lexed::new();
+        let mut out = Vec::new();
+        loop {
+            lines.read(&mut lexed, batch);
+            for e in &lexed.lines {
+                let text = match &e.what {
+                    Line::Text { text, toks } => {
+                        let t = &lexed.text[text.clone()];
+                        let ours: Vec<_> = lexed.toks[toks.clone()]
+                            .iter()
+                            .map(|&(s, e, k)| {
+                                (
+                                    s as usize,
+                                    k.with_text(&t[s as usize..e as usize]),
+                                    e as usize,
+                                )
+                            })
+                            .collect();
+                        assert_eq!(ours, lexer::tokens(t).collect::<Vec<_>>());
+                        format!("text {t}")
+                    }
+                    Line::TooLong => "too long".to_string(),
+                    Line::NotUtf8 { valid_up_to, lossy } => {
+                        format!("bad {valid_up_to} {}", &lexed.text[lossy.clone()])
+                    }
+                    Line::ReadError(m) => format!("error {m}"),
+                };
+                out.push((e.span, text));
+            }
+            if lexed.is_end() {
+                return out;
+            }
+        }
+    }
+
+    proptest::proptest! {
+        /// Lines taken whole from the reader's buffer, many at once, are the lines the
+        /// reader gives one by one, with the same spans: whatever the buffer size, line
+        /// ends, byte-order mark, over-long lines and bytes that are not UTF-8.
+        #[test]
+        fn batches_hold_the_lines_one_by_one_reading_gives(
+            parts in proptest::collection::vec(
+                proptest::prop_oneof![
+                    proptest::string::string_regex("[G01XYZ. ;(a)-]{0,12}").expect("regex").prop_map(String::into_bytes),
+                    proptest::strategy::Just(b"\r\n".to_vec()),
+                    proptest::strategy::Just(b"\n".to_vec()),
+                    proptest::strategy::Just(vec![0xff, b'G']),
+                    proptest::strategy::Just("é".as_bytes().to_vec()),
+                ],
+                0..40,
+            ),
+            bom in proptest::bool::ANY,
+            cap in 8usize..64,
+            max_len in 4usize..30,
+            batch in 1usize..6,
+        ) {
+            let mut bytes = if bom { b"\xEF\xBB\xBF".to_vec() } else { Vec::new() };
+            bytes.extend(parts.concat());
+            proptest::prop_assert_eq!(
+                batched(&bytes, cap, max_len, batch),
+                one_by_one(&bytes, cap, max_len)
+            );
+        }
+    }
 }
