@@ -304,3 +304,35 @@ fn slow_feeds_keep_their_digits() {
         .collect();
     assert_eq!(feeds, [0.0628, 1200.0], "{out}");
 }
+
+/// The backends print `G4 P` in the unit their firmware reads it in
+/// (`machine::Flavour::dwell`): half a second is `P500` for RepRapFirmware and `P0.5` for
+/// Grbl.
+#[test]
+fn dwells_print_in_the_flavours_unit() {
+    use ncpost::machine::Flavour;
+    let dir = std::env::temp_dir().join(format!("ncpost-feed-dwell-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let path = dir.join("dwell.gcode");
+    std::fs::write(&path, "G21 G90\nG0 X1\nG4 P500\nG0 X2\n").expect("written");
+    for (args, flavour) in [
+        (["--preset", "duet-cnc"], Flavour::RrfCnc),
+        (["--emit", "grbl"], Flavour::Grbl),
+    ] {
+        let out = Command::new(env!("CARGO_BIN_EXE_ncpost"))
+            .arg("run")
+            .args(args)
+            .arg(&path)
+            .output()
+            .expect("ncpost runs");
+        let text = String::from_utf8(out.stdout).expect("text");
+        let p = text
+            .lines()
+            .find(|l| l.starts_with("G4"))
+            .and_then(|l| words(l).into_iter().find(|w| w.0 == 'P'))
+            .unwrap_or_else(|| panic!("a G4 P in\n{text}"))
+            .1;
+        assert_eq!(flavour.dwell().seconds(p), 0.5, "{args:?}: {text}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

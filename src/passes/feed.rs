@@ -712,6 +712,30 @@ mod tests {
         }
     }
 
+    /// X, Y, Z within two print units of where they were printed are held there while a
+    /// rotary turns; further off, or without a turn, they are left exact.
+    #[test]
+    fn hold_keeps_xyz_that_move_only_by_rounding() {
+        let f = feed(0, [0.0; 2], 4);
+        let a = f
+            .read(&joints(&f, [10.0, -17.3648, 31.5192, 10.0, 90.0]))
+            .expect("readable");
+        let held = |y: f64, c: f64| {
+            let mut end = joints(&f, [10.0, y, 31.5192, 10.0, c]);
+            f.hold(&a, &mut end);
+            end.get(Axis::Y)
+        };
+        assert_eq!(held(-17.36489, 95.0), Some(-17.3648));
+        assert_eq!(held(-17.36499, 95.0), Some(-17.3648));
+        assert_eq!(held(-17.3651, 95.0), Some(-17.3651));
+        assert_eq!(held(-17.36489, 90.0), Some(-17.36489));
+        let mut off = feed(0, [0.0; 2], 4);
+        off.hold_units = 0;
+        let mut end = joints(&off, [10.0, -17.36489, 31.5192, 10.0, 95.0]);
+        off.hold(&a, &mut end);
+        assert_eq!(end.get(Axis::Y), Some(-17.36489));
+    }
+
     #[test]
     fn the_example_turn() {
         let mut f = feed(0, [0.0; 2], 4);
