@@ -28,23 +28,46 @@ const FIXTURES: [(&str, f64); 2] = [("hemisphere.cl", 300.0), ("c_table_circle.c
 /// The `feed` pass's default speed of a turn about a standing tip, degrees per minute.
 const REORIENT_FEED: f64 = 1000.0;
 
-/// Runs `ncpost run --preset <preset>` on `src` (a file under tests/fixtures/cl, or CL
-/// text): standard output and standard error.
+/// The `[machine]` of the built-in preset `name`.
+fn machine(name: &str) -> Machine {
+    Preset::builtin(name)
+        .and_then(|p| p.machine)
+        .expect("a 5-axis preset")
+}
+
+/// Runs `ncpost run <args> <path>`: exit success, standard output and standard error.
+fn ncpost(args: &[&str], path: &Path) -> (bool, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_ncpost"))
+        .arg("run")
+        .args(args)
+        .arg(path)
+        .output()
+        .expect("ncpost runs");
+    (
+        out.status.success(),
+        String::from_utf8(out.stdout).expect("text"),
+        String::from_utf8(out.stderr).expect("text"),
+    )
+}
+
+/// Runs `ncpost run --preset <preset>` on a file of tests/fixtures/cl, which must
+/// compile: standard output and standard error.
 fn run(preset: &str, fixture: &str) -> (String, String) {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("tests/fixtures/cl")
         .join(fixture);
-    let out = Command::new(env!("CARGO_BIN_EXE_ncpost"))
-        .args(["run", "--preset", preset])
-        .arg(&path)
-        .output()
-        .expect("ncpost runs");
-    let (stdout, stderr) = (
-        String::from_utf8(out.stdout).expect("text"),
-        String::from_utf8(out.stderr).expect("text"),
-    );
-    assert!(out.status.success(), "{preset} {fixture}: {stderr}");
+    let (ok, stdout, stderr) = ncpost(&["--preset", preset], &path);
+    assert!(ok, "{preset} {fixture}: {stderr}");
     (stdout, stderr)
+}
+
+/// Writes `text` to a file `name` in a fresh temporary directory (removed by the caller).
+fn temp_file(name: &str, text: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("ncpost-feed-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let path = dir.join(name);
+    std::fs::write(&path, text).expect("written");
+    path
 }
 
 /// The words of a line: letter and number, comments (`;`, parentheses) left out.
@@ -210,9 +233,7 @@ fn worst_block(m: &Machine, text: &str, feed: f64) -> (f64, String, usize) {
 #[test]
 fn block_times_hold_on_the_controller() {
     for preset in PRESETS {
-        let m = Preset::builtin(preset)
-            .and_then(|p| p.machine)
-            .expect("a 5-axis preset");
+        let m = machine(preset);
         for (fixture, feed) in FIXTURES {
             let (text, stderr) = run(preset, fixture);
             assert!(
@@ -236,9 +257,7 @@ fn block_times_hold_on_the_controller() {
 #[test]
 fn held_axes_keep_the_tip_on_the_circle() {
     for preset in PRESETS {
-        let m = Preset::builtin(preset)
-            .and_then(|p| p.machine)
-            .expect("a 5-axis preset");
+        let m = machine(preset);
         let (text, _) = run(preset, "c_table_circle.cl");
         let mut reader = Reader::new(&m);
         let mut held = 0;
@@ -271,16 +290,8 @@ fn held_axes_keep_the_tip_on_the_circle() {
 fn a_feed_below_the_minimum_speed_is_reported_with_its_time() {
     let cl = "UNITS/MM\nMULTAX/ON\nRAPID\nGOTO/10.0,0.0,20.0,0.0,0.0,1.0\nFEDRAT/MMPM,3\n\
               GOTO/10.0,0.0,15.0,0.0,0.0,1.0\nFINI\n";
-    let dir = std::env::temp_dir().join(format!("ncpost-feed-controller-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    let path = dir.join("plunge.cl");
-    std::fs::write(&path, cl).expect("written");
-    let out = Command::new(env!("CARGO_BIN_EXE_ncpost"))
-        .args(["run", "--preset", "emoc-x5"])
-        .arg(&path)
-        .output()
-        .expect("ncpost runs");
-    let stderr = String::from_utf8(out.stderr).expect("text");
+    let path = temp_file("plunge.cl", cl);
+    let (_, _, stderr) = ncpost(&["--preset", "emoc-x5"], &path);
     let flat = stderr.split_whitespace().collect::<Vec<_>>().join(" ");
     assert!(flat.contains("feed::min-speed"), "{stderr}");
     assert!(
@@ -288,7 +299,7 @@ fn a_feed_below_the_minimum_speed_is_reported_with_its_time() {
         "{stderr}"
     );
     assert!(flat.contains("M203 I"), "{stderr}");
-    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(path.parent().expect("its directory"));
 }
 
 /// F keeps the digits its time needs: a slow F gets more decimals than the backend's
@@ -311,21 +322,12 @@ fn slow_feeds_keep_their_digits() {
 #[test]
 fn dwells_print_in_the_flavours_unit() {
     use ncpost::machine::Flavour;
-    let dir = std::env::temp_dir().join(format!("ncpost-feed-dwell-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).expect("temp dir");
-    let path = dir.join("dwell.gcode");
-    std::fs::write(&path, "G21 G90\nG0 X1\nG4 P500\nG0 X2\n").expect("written");
+    let path = temp_file("dwell.gcode", "G21 G90\nG0 X1\nG4 P500\nG0 X2\n");
     for (args, flavour) in [
         (["--preset", "duet-cnc"], Flavour::RrfCnc),
         (["--emit", "grbl"], Flavour::Grbl),
     ] {
-        let out = Command::new(env!("CARGO_BIN_EXE_ncpost"))
-            .arg("run")
-            .args(args)
-            .arg(&path)
-            .output()
-            .expect("ncpost runs");
-        let text = String::from_utf8(out.stdout).expect("text");
+        let (_, text, _) = ncpost(&args, &path);
         let p = text
             .lines()
             .find(|l| l.starts_with("G4"))
@@ -334,5 +336,5 @@ fn dwells_print_in_the_flavours_unit() {
             .1;
         assert_eq!(flavour.dwell().seconds(p), 0.5, "{args:?}: {text}");
     }
-    let _ = std::fs::remove_dir_all(&dir);
+    let _ = std::fs::remove_dir_all(path.parent().expect("its directory"));
 }
