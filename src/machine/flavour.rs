@@ -8,7 +8,7 @@
 //! | minimum speed, mm/min ([`Flavour::min_speed`]) | 30 (`M203 I`) | 1 (`MINIMUM_FEED_RATE`) | none | 0 (`M205 S`) | none |
 //! | F kept to ([`Flavour::feed_digits`]) | 7 digits (float) | 7 digits (float) | 15 (double) | 7 (float) | 15 (double) |
 //! | `G4 P` ([`Flavour::dwell`]) | whole ms (`S`: s) | s | s | whole ms (`S`: s) | ms |
-//! | arc end off its circle ([`Flavour::arc_tolerance`]) | accepted | error beyond 0.005 mm and 0.1 % | error beyond 0.0283 mm and 0.1 % | accepted | accepted |
+//! | arc end off its circle ([`Flavour::arc_tolerance`]) | accepted | error beyond 0.005 mm and 0.1 % (or 0.5 mm) | error beyond 0.0283 mm and 0.1 % | accepted | accepted |
 //! | program end ([`Flavour::program_end`]) | `M2`/`M0`; nothing after runs (`M30` deletes a file) | `M30`/`M2`; streamed lines after still run | `M30`/`M2`; nothing after runs | none (`M30` deletes a file); the file's end | none; the file's end |
 //! | codes ([`Flavour::has`]) | G93 from 3.5, no cycles | G93, no cycles | G93, cycles | no G93 | no G93, arcs if configured |
 //!
@@ -19,8 +19,8 @@
 //! `gcode.c`: "[Arc definition error] > 0.005mm AND 0.1% radius", and beyond 0.5 mm
 //! always; the Grbl wiki's "Grbl v1.1 Commands": `G4 P` in seconds, `M2`/`M30` program end,
 //! no canned cycles); LinuxCNC (G-code reference <https://linuxcnc.org/docs/html/gcode/g-code.html>:
-//! `G4 P` seconds, `G81`–`G89`, `G93`; `rs274ngc` `CENTER_ARC_RADIUS_TOLERANCE_MM = 2 * 0.01
-//! * sqrt 2` with `SPIRAL_RELATIVE_TOLERANCE 0.001`, M2/M30 end the program); Marlin
+//! `G4 P` seconds, `G81`–`G89`, `G93`; `rs274ngc`: `CENTER_ARC_RADIUS_TOLERANCE_MM` is
+//! 2 × 0.01 × √2 mm, `SPIRAL_RELATIVE_TOLERANCE` 0.001; M2/M30 end the program); Marlin
 //! (<https://marlinfw.org/docs/gcode/G004.html>: `P` milliseconds, `S` seconds;
 //! `M205 S` minimum feedrate, default 0); Klipper (<https://www.klipper3d.org/G-Codes.html>:
 //! `G4 P<milliseconds>`, `G2`/`G3` only with `[gcode_arcs]`).
@@ -92,13 +92,16 @@ impl DwellUnit {
 
 /// How far an arc's end may lie off the circle through its start about its centre before
 /// the controller refuses the block: it refuses when the two radii differ by more than
-/// both `absolute` and `relative` times the radius.
+/// both `absolute` and `relative` times the radius, or by more than `always`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ArcTolerance {
     /// mm.
     pub absolute: f64,
     /// A share of the radius.
     pub relative: f64,
+    /// mm beyond which any radius is refused (infinite where the relative rule alone
+    /// decides).
+    pub always: f64,
 }
 
 impl ArcTolerance {
@@ -111,10 +114,12 @@ impl ArcTolerance {
     /// assert!(!grbl.refuses(10.0, 0.009));
     /// assert!(grbl.refuses(10.0, 0.011));
     /// assert!(!grbl.refuses(1.0, 0.004));
+    /// // Beyond 0.5 mm Grbl refuses whatever the radius.
+    /// assert!(grbl.refuses(1000.0, 0.6));
     /// ```
     pub fn refuses(&self, r: f64, dr: f64) -> bool {
         let dr = dr.abs();
-        dr > self.absolute && dr > self.relative * r.abs()
+        dr > self.always || (dr > self.absolute && dr > self.relative * r.abs())
     }
 }
 
@@ -234,10 +239,12 @@ impl Flavour {
             Flavour::Grbl => Some(ArcTolerance {
                 absolute: 0.005,
                 relative: 0.001,
+                always: 0.5,
             }),
             Flavour::Linuxcnc => Some(ArcTolerance {
                 absolute: 2.0 * 0.01 * std::f64::consts::SQRT_2,
                 relative: 0.001,
+                always: f64::INFINITY,
             }),
             Flavour::RrfFdm | Flavour::RrfCnc | Flavour::Marlin | Flavour::Klipper => None,
         }
