@@ -12,10 +12,10 @@
 //! emitted F is the rule's distance over `t`. Everything is computed from the numbers the
 //! controller will read: each joint value rounded as the backend prints it (with the G92
 //! offsets in force), both for `L` (forward kinematics of the rounded joints) and for the
-//! controller's distance. The IR joint values themselves are left exact, but for one case
-//! below. A printed rotary
-//! value is a whole number of units, so the sines and cosines of the kinematics come from
-//! the tables of [`RotaryGrid`] rather than libm (which stays for values off the grid).
+//! controller's distance. The IR joint values themselves are left exact (but for X, Y, Z
+//! held below). A printed rotary value is a whole number of units, so the sines and
+//! cosines of the kinematics come from the tables of [`RotaryGrid`] rather than libm
+//! (which stays for values off the grid).
 //!
 //! A move that turns the tool about a fixed tip has no tip speed; it turns at
 //! `reorient_feed` degrees per minute (over the two rotary deltas) instead.
@@ -54,7 +54,9 @@ use crate::ir::{
 };
 use crate::machine::grid::RotaryGrid;
 use crate::machine::{FeedRule, Machine, Turns};
-use crate::num::print::{Decimals, FEED_RESOLUTION, from_units, printed, to_units};
+use crate::num::print::{
+    Decimals, FEED_MAX_DECIMALS, FEED_RESOLUTION, from_units, printed, to_units,
+};
 
 /// Options of `feed`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -370,7 +372,7 @@ impl Feed {
                     ),
                 )
                 .at_span(span)
-                .with_help("print F with more decimals (the backend's `decimals.feed`)")
+                .with_help(format!("this F is too slow for the most decimals an F is printed with ({FEED_MAX_DECIMALS}): raise the programmed feed, or use inverse time (`mode = \"inverse-time\"`) where the controller has G93"))
             });
         }
         if units == 0 { printed } else { f }
