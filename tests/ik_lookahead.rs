@@ -181,7 +181,8 @@ fn angle_to_arc(v: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
 /// the printed numbers within 1e-3 mm, 1e-3 deg); between them the joint-linear path within
 /// the tip and axis tolerances, no cutting block with the tip standing still, and each
 /// block's time under the printed F (NIST rule) within 1 % of tip length / programmed F.
-fn check_printed(name: &str, run: &Run, points: &[ClPoint]) {
+/// Returns the worst tip deviation from the programmed lines, mm.
+fn check_printed(name: &str, run: &Run, points: &[ClPoint]) -> f64 {
     let m = &run.machine;
     let printed = read_printed(&run.text, letters(m));
     let mut hits = Vec::new();
@@ -195,6 +196,7 @@ fn check_printed(name: &str, run: &Run, points: &[ClPoint]) {
     }
     assert_eq!(hits.len(), points.len(), "{name}: CL points reached\n{}", run.text);
     let index = |p: &Printed| printed.iter().position(|q| q.line == p.line).expect("line");
+    let mut worst = 0.0f64;
     for seg in 1..points.len() {
         let (a, b) = (&points[seg - 1], &points[seg]);
         if b.rapid {
@@ -204,20 +206,24 @@ fn check_printed(name: &str, run: &Run, points: &[ClPoint]) {
         for w in i0..i1 {
             let (p0, p1) = (&printed[w], &printed[w + 1]);
             assert!(!p1.rapid, "{name}: a rapid inside the cut to point {seg}");
-            check_block(name, m, (p0, p1), (a, b));
+            worst = worst.max(check_block(name, m, (p0, p1), (a, b)));
         }
     }
+    worst
 }
 
-/// One printed cutting block `p0 → p1` inside the programmed segment `a → b`.
-fn check_block(name: &str, m: &Machine, (p0, p1): (&Printed, &Printed), (a, b): (&ClPoint, &ClPoint)) {
+/// One printed cutting block `p0 → p1` inside the programmed segment `a → b`; returns its
+/// worst tip deviation, mm.
+fn check_block(name: &str, m: &Machine, (p0, p1): (&Printed, &Printed), (a, b): (&ClPoint, &ClPoint)) -> f64 {
     let line = p1.line;
+    let mut worst = 0.0f64;
     for s in 0..=100 {
         let s = f64::from(s) / 100.0;
         let j: [f64; 5] = std::array::from_fn(|q| p0.j[q] + (p1.j[q] - p0.j[q]) * s);
         let (tip, axis) = fk(m, &j);
         let d = distance_to_segment(&tip, &a.tip, &b.tip);
         assert!(d <= TIP_TOL + 1e-4, "{name}: line {line}: tip {d} mm off the line");
+        worst = worst.max(d);
         let e = angle_to_arc(&axis, &a.axis, &b.axis);
         assert!(e <= AXIS_TOL_DEG + 1e-3, "{name}: line {line}: axis {e} deg off");
     }
@@ -232,6 +238,7 @@ fn check_block(name: &str, m: &Machine, (p0, p1): (&Printed, &Printed), (a, b): 
         rel < 0.01 || (minutes - programmed).abs() < 2e-6,
         "{name}: line {line}: {minutes} min printed vs {programmed} min programmed"
     );
+    worst
 }
 
 fn codes(run: &Run) -> Vec<&str> {
@@ -269,7 +276,10 @@ fn a_cut_through_the_singular_direction_keeps_the_tip_moving() {
         ];
         let run = compile(name, &cl_text(&points));
         assert!(!run.diags.iter().any(Diagnostic::is_error), "{name}: {:?}", run.diags);
-        check_printed(name, &run, &as_written(&points));
+        let worst = check_printed(name, &run, &as_written(&points));
+        // The figure for a spread swing, with the printed decimals' rounding.
+        assert!(worst < 0.003, "{name}: the tip strays {worst} mm\n{}", run.text);
+        eprintln!("{name}: worst tip deviation {worst:.5} mm");
     }
 }
 

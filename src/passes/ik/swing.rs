@@ -31,6 +31,11 @@ const PIECE_SWING: f64 = 1.0;
 /// Swings smaller than this (degrees) are left to the move itself.
 const LEAST_SWING: f64 = 1e-6;
 
+/// A swing whose whole move keeps the tip this close (mm) to the line at its middle, and
+/// the axis within [`SWING_LEAN`], is left to the move itself: `densify` then passes the
+/// move as it is, and the program has no more blocks than it needs.
+const MOVE_SAG: f64 = 0.0025;
+
 impl Ik {
     /// Puts out the pieces that spread the free rotary's swing over the start of cutting
     /// move `m` (to the joints of `choice`), when the last pose held it at a singular
@@ -70,6 +75,9 @@ impl Ik {
         // t d; stepping linearly to the end of the swing at fraction `reach` of the move,
         // the lean is at most reach turn swing / 4.
         let reach = (4.0 * SWING_LEAN.to_radians() / (turn * swing.to_radians())).min(1.0);
+        if reach >= 1.0 && self.sag(start.tip, (xyz, angles), pose, choice) <= MOVE_SAG {
+            return;
+        }
         let n = (swing / PIECE_SWING).ceil().max(1.0);
         let first = reach / (2.0 * n);
         let ends = Ends {
@@ -89,6 +97,34 @@ impl Ik {
             }
         }
         self.swing_buf = buf;
+    }
+
+    /// How far (mm) the tip is off the programmed line halfway through the move from the
+    /// joints `from` (tip `from_tip`) to `pose` at the rotaries of `choice`, the controller
+    /// moving the joints linearly.
+    fn sag(
+        &self,
+        from_tip: Point3<f64>,
+        (xyz, angles): ([f64; 3], [f64; 2]),
+        pose: &crate::ir::Pose,
+        choice: &Choice,
+    ) -> f64 {
+        let to = match choice.trig {
+            Some(turns) => self.machine.linear_at(&pose.tip, &turns),
+            None => self.machine.linear(&pose.tip, choice.angles),
+        };
+        let mid = |a: f64, b: f64| (a + b) / 2.0;
+        let xyz_mid = [0, 1, 2].map(|i| mid(xyz[i], to[i]));
+        let angles_mid = [0, 1].map(|i| mid(angles[i], choice.angles[i]));
+        let tip = self.machine.forward(&xyz_mid, angles_mid).tip;
+        let line = pose.tip - from_tip;
+        let len2 = line.norm_squared();
+        let t = if len2 > 0.0 {
+            ((tip - from_tip).dot(&line) / len2).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (tip - (from_tip + line * t)).norm()
     }
 
     /// The tips and rotaries of the pieces of a swing of rotary `k` from `p` to `q` (see

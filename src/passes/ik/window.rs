@@ -385,7 +385,13 @@ impl Ik {
             .unwrap_or([None; 2]);
         let mut text = String::new();
         for o in &self.machine.inverse(start.axis) {
-            let from = self.candidate(o, near).unlimited;
+            // Each rotary inside its range where a turn of it is, so that the message
+            // names the rotary that cannot reach.
+            let unlimited = self.candidate(o, near).unlimited;
+            let from = [0, 1].map(|i| {
+                self.in_limits(i, o.angles[i], near[i])
+                    .unwrap_or(unlimited[i])
+            });
             if !text.is_empty() {
                 text.push_str("; ");
             }
