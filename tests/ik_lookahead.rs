@@ -8,9 +8,11 @@ use ncpost::machine::Machine;
 use ncpost::pipeline::{Pipeline, Source};
 use proptest::prelude::*;
 
+#[path = "common/geometry.rs"]
+mod geometry;
+use geometry::{AXIS_TOL_DEG, TIP_TOL, angle_to_arc, distance_to_segment};
+
 const PRESETS: [&str; 4] = ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"];
-const TIP_TOL: f64 = 0.01;
-const AXIS_TOL_DEG: f64 = 0.05;
 
 /// A programmed CL point: tip, unit tool axis, rapid or the feed (mm/min) to it.
 #[derive(Debug, Clone, Copy)]
@@ -37,23 +39,6 @@ fn cl_text(points: &[ClPoint]) -> String {
         ));
     }
     s
-}
-
-/// The points as the CL frontend reads them back (the written decimals).
-fn as_written(points: &[ClPoint]) -> Vec<ClPoint> {
-    let r = |v: f64, d: i32| (v * 10f64.powi(d)).round() / 10f64.powi(d);
-    points
-        .iter()
-        .map(|p| ClPoint {
-            tip: Point3::new(r(p.tip.x, 9), r(p.tip.y, 9), r(p.tip.z, 9)),
-            axis: Unit::new_normalize(Vector3::new(
-                r(p.axis.x, 12),
-                r(p.axis.y, 12),
-                r(p.axis.z, 12),
-            )),
-            ..*p
-        })
-        .collect()
 }
 
 /// One printed motion: rapid, X Y Z and both rotaries (IR frame, G92 undone), F.
@@ -100,7 +85,11 @@ fn read_printed(text: &str, letters: [char; 5]) -> Vec<Printed> {
                 feed = value(w);
             }
         }
-        if motion && !words.iter().any(|w| w.starts_with('M') || w.starts_with('T')) {
+        if motion
+            && !words
+                .iter()
+                .any(|w| w.starts_with('M') || w.starts_with('T'))
+        {
             out.push(Printed {
                 rapid,
                 j: pos,
@@ -146,37 +135,6 @@ fn fk(m: &Machine, j: &[f64; 5]) -> (Point3<f64>, Unit<Vector3<f64>>) {
     (p.tip, p.axis)
 }
 
-fn distance_to_segment(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
-    let ab = b - a;
-    let len2 = ab.norm_squared();
-    let s = if len2 > 0.0 {
-        ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + ab * s)).norm()
-}
-
-/// Angle (deg) from `v` to the great-circle arc from `a` to `b`.
-fn angle_to_arc(v: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
-    let ends = v.angle(a).min(v.angle(b)).to_degrees();
-    let n = a.cross(b);
-    if n.norm() < 1e-12 {
-        return ends;
-    }
-    let n = n.normalize();
-    let proj = v - n * n.dot(v);
-    if proj.norm() < 1e-12 {
-        return ends;
-    }
-    let inside = a.cross(&proj).dot(&n) >= -1e-12 && proj.cross(b).dot(&n) >= -1e-12;
-    if inside {
-        v.angle(&proj).to_degrees()
-    } else {
-        ends
-    }
-}
-
 /// Checks the printed program of `points` on `run`: every CL point reached in order (FK of
 /// the printed numbers within 1e-3 mm, 1e-3 deg); between them the joint-linear path within
 /// the tip and axis tolerances, no cutting block with the tip standing still, and each
@@ -194,7 +152,12 @@ fn check_printed(name: &str, run: &Run, points: &[ClPoint]) -> f64 {
             hits.push(p);
         }
     }
-    assert_eq!(hits.len(), points.len(), "{name}: CL points reached\n{}", run.text);
+    assert_eq!(
+        hits.len(),
+        points.len(),
+        "{name}: CL points reached\n{}",
+        run.text
+    );
     let index = |p: &Printed| printed.iter().position(|q| q.line == p.line).expect("line");
     let mut worst = 0.0f64;
     for seg in 1..points.len() {
@@ -214,7 +177,12 @@ fn check_printed(name: &str, run: &Run, points: &[ClPoint]) -> f64 {
 
 /// One printed cutting block `p0 → p1` inside the programmed segment `a → b`; returns its
 /// worst tip deviation, mm.
-fn check_block(name: &str, m: &Machine, (p0, p1): (&Printed, &Printed), (a, b): (&ClPoint, &ClPoint)) -> f64 {
+fn check_block(
+    name: &str,
+    m: &Machine,
+    (p0, p1): (&Printed, &Printed),
+    (a, b): (&ClPoint, &ClPoint),
+) -> f64 {
     let line = p1.line;
     let mut worst = 0.0f64;
     for s in 0..=100 {
@@ -222,13 +190,22 @@ fn check_block(name: &str, m: &Machine, (p0, p1): (&Printed, &Printed), (a, b): 
         let j: [f64; 5] = std::array::from_fn(|q| p0.j[q] + (p1.j[q] - p0.j[q]) * s);
         let (tip, axis) = fk(m, &j);
         let d = distance_to_segment(&tip, &a.tip, &b.tip);
-        assert!(d <= TIP_TOL + 1e-4, "{name}: line {line}: tip {d} mm off the line");
+        assert!(
+            d <= TIP_TOL + 1e-4,
+            "{name}: line {line}: tip {d} mm off the line"
+        );
         worst = worst.max(d);
         let e = angle_to_arc(&axis, &a.axis, &b.axis);
-        assert!(e <= AXIS_TOL_DEG + 1e-3, "{name}: line {line}: axis {e} deg off");
+        assert!(
+            e <= AXIS_TOL_DEG + 1e-3,
+            "{name}: line {line}: axis {e} deg off"
+        );
     }
     let tip_len = (fk(m, &p1.j).0 - fk(m, &p0.j).0).norm();
-    assert!(tip_len > 1e-4, "{name}: line {line}: the tip stands still in a cut");
+    assert!(
+        tip_len > 1e-4,
+        "{name}: line {line}: the tip stands still in a cut"
+    );
     let d = |r: std::ops::Range<usize>| r.map(|q| (p1.j[q] - p0.j[q]).powi(2)).sum::<f64>().sqrt();
     let (dxyz, drot) = (d(0..3), d(3..5));
     let minutes = if dxyz > 0.0 { dxyz / p1.f } else { drot / p1.f };
@@ -239,6 +216,14 @@ fn check_block(name: &str, m: &Machine, (p0, p1): (&Printed, &Printed), (a, b): 
         "{name}: line {line}: {minutes} min printed vs {programmed} min programmed"
     );
     worst
+}
+
+fn no_errors(run: &Run) {
+    assert!(
+        !run.diags.iter().any(Diagnostic::is_error),
+        "{:?}",
+        run.diags
+    );
 }
 
 fn codes(run: &Run) -> Vec<&str> {
@@ -271,16 +256,45 @@ fn a_cut_through_the_singular_direction_keeps_the_tip_moving() {
         let after = Unit::new_normalize(u * c + e2 * side - e1 * t);
         let points = [
             pt([-9.047619048, -13.571428571, 4.107142857], before, true),
-            pt([-8.571428571, -12.857142857, 4.285714286], Unit::new_normalize(u), false),
+            pt(
+                [-8.571428571, -12.857142857, 4.285714286],
+                Unit::new_normalize(u),
+                false,
+            ),
             pt([-8.095238095, -12.142857143, 4.464285714], after, false),
         ];
         let run = compile(name, &cl_text(&points));
-        assert!(!run.diags.iter().any(Diagnostic::is_error), "{name}: {:?}", run.diags);
-        let worst = check_printed(name, &run, &as_written(&points));
+        assert!(
+            !run.diags.iter().any(Diagnostic::is_error),
+            "{name}: {:?}",
+            run.diags
+        );
+        let worst = check_printed(name, &run, &points);
         // The figure for a spread swing, with the printed decimals' rounding.
-        assert!(worst < 0.003, "{name}: the tip strays {worst} mm\n{}", run.text);
+        assert!(
+            worst < 0.003,
+            "{name}: the tip strays {worst} mm\n{}",
+            run.text
+        );
         eprintln!("{name}: worst tip deviation {worst:.5} mm");
     }
+}
+
+/// The tool axis tilted `deg` degrees from Z towards +X.
+fn tilt(deg: f64) -> Unit<Vector3<f64>> {
+    let r = deg.to_radians();
+    Unit::new_normalize(Vector3::new(r.sin(), 0.0, r.cos()))
+}
+
+/// A trunnion cut from a rapid at `start` degrees towards +X through Z to 40 degrees
+/// towards -X (CL lines 4 to 7).
+fn through_z(start: f64) -> Vec<ClPoint> {
+    vec![
+        pt([0.0, 0.0, 50.0], tilt(start), true),
+        pt([5.0, 0.0, 50.0], tilt(10.0), false),
+        pt([10.0, 0.0, 50.0], tilt(-10.0), false),
+        pt([15.0, 0.0, 50.0], tilt(-40.0), false),
+    ]
 }
 
 /// Tool axes (part frame) of the machine at rotary values `r`.
@@ -305,22 +319,17 @@ fn machine(name: &str) -> Machine {
 /// the look-ahead takes it at the rapid, so there is no flip.
 #[test]
 fn trunnion_reorientation_through_z_then_past_b_minus_35_needs_no_flip() {
-    let tilt = |deg: f64| {
-        let r = deg.to_radians();
-        Unit::new_normalize(Vector3::new(r.sin(), 0.0, r.cos()))
-    };
-    let points = [
-        pt([0.0, 0.0, 50.0], tilt(30.0), true),
-        pt([5.0, 0.0, 50.0], tilt(10.0), false),
-        pt([10.0, 0.0, 50.0], tilt(-10.0), false),
-        pt([15.0, 0.0, 50.0], tilt(-40.0), false),
-        pt([20.0, 0.0, 50.0], tilt(-40.0), false),
-    ];
+    let mut points = through_z(30.0);
+    points.push(pt([20.0, 0.0, 50.0], tilt(-40.0), false));
     let run = compile("trunnion-bc", &cl_text(&points));
-    assert!(!run.diags.iter().any(Diagnostic::is_error), "{:?}", run.diags);
-    check_printed("trunnion", &run, &as_written(&points));
+    no_errors(&run);
+    check_printed("trunnion", &run, &points);
     for p in read_printed(&run.text, letters(&run.machine)) {
-        assert!((-35.0..=120.0).contains(&p.j[3]), "B{} out of range", p.j[3]);
+        assert!(
+            (-35.0..=120.0).contains(&p.j[3]),
+            "B{} out of range",
+            p.j[3]
+        );
     }
 }
 
@@ -344,10 +353,15 @@ fn head_head_start_chooses_a_below_zero_when_the_path_needs_it() {
     let m = machine("head-head-ab");
     let points = head_head_path(&m, [80.0, 80.0], [5.0, 0.0], 7);
     let run = compile("head-head-ab", &cl_text(&points));
-    assert!(!run.diags.iter().any(Diagnostic::is_error), "{:?}", run.diags);
+    no_errors(&run);
     let printed = read_printed(&run.text, letters(&m));
-    assert!(printed[0].j[3] < 0.0, "starts at A{}\n{}", printed[0].j[3], run.text);
-    check_printed("head-head start", &run, &as_written(&points));
+    assert!(
+        printed[0].j[3] < 0.0,
+        "starts at A{}\n{}",
+        printed[0].j[3],
+        run.text
+    );
+    check_printed("head-head start", &run, &points);
 }
 
 /// A flip two cuts need is made at the rapid between them: the first cut needs A > 0
@@ -362,29 +376,26 @@ fn an_unavoidable_flip_is_made_at_the_rapid() {
     }
     points.extend(second);
     let run = compile("head-head-ab", &cl_text(&points));
-    assert!(!run.diags.iter().any(Diagnostic::is_error), "{:?}", run.diags);
+    no_errors(&run);
     let printed = read_printed(&run.text, letters(&m));
     for w in printed.windows(2) {
-        let jump = (w[1].j[3] - w[0].j[3]).abs().max((w[1].j[4] - w[0].j[4]).abs());
-        assert!(w[1].rapid || jump < 30.0, "line {}: turns {jump} deg cutting", w[1].line);
+        let jump = (w[1].j[3] - w[0].j[3])
+            .abs()
+            .max((w[1].j[4] - w[0].j[4]).abs());
+        assert!(
+            w[1].rapid || jump < 30.0,
+            "line {}: turns {jump} deg cutting",
+            w[1].line
+        );
     }
-    check_printed("flip at the rapid", &run, &as_written(&points));
+    check_printed("flip at the rapid", &run, &points);
 }
 
 /// A cut that needs both branches (B +40 to -40 through Z on the trunnion: B40 C0 ends at
 /// B -40, and B-40 C180 starts there) flips: `ik::flip`, naming what stops each branch.
 #[test]
 fn a_flip_no_branch_avoids_is_an_error_that_says_why() {
-    let tilt = |deg: f64| {
-        let r = deg.to_radians();
-        Unit::new_normalize(Vector3::new(r.sin(), 0.0, r.cos()))
-    };
-    let points = [
-        pt([0.0, 0.0, 50.0], tilt(40.0), true),
-        pt([5.0, 0.0, 50.0], tilt(10.0), false),
-        pt([10.0, 0.0, 50.0], tilt(-10.0), false),
-        pt([15.0, 0.0, 50.0], tilt(-40.0), false),
-    ];
+    let points = through_z(40.0);
     let run = compile("trunnion-bc", &cl_text(&points));
     let flip = run
         .diags
@@ -393,7 +404,10 @@ fn a_flip_no_branch_avoids_is_an_error_that_says_why() {
         .unwrap_or_else(|| panic!("{:?}", codes(&run)));
     let text = flip.message.clone();
     assert!(text.contains("no flip-free choice"), "{text}");
-    assert!(text.contains("B would be -40.000 deg, outside -35..120"), "{text}");
+    assert!(
+        text.contains("B would be -40.000 deg, outside -35..120"),
+        "{text}"
+    );
     assert!(text.contains("at line 4"), "{text}");
 }
 
@@ -416,7 +430,11 @@ fn feasible(m: &Machine, start: [f64; 2], steps: &[(bool, f64, f64)]) -> Vec<ClP
             r = [clamp(0, r[0] + d0), clamp(1, r[1] + d1)];
         }
         let x = k as f64 * 0.7 - 20.0;
-        out.push(pt([x, 5.0 + (k as f64 * 0.3).sin(), 10.0], axis_at(m, r), rapid || k == 0));
+        out.push(pt(
+            [x, 5.0 + (k as f64 * 0.3).sin(), 10.0],
+            axis_at(m, r),
+            rapid || k == 0,
+        ));
     }
     out
 }
@@ -440,7 +458,7 @@ proptest! {
         let c = codes(&run);
         prop_assert!(!c.contains(&"ik::flip") && !c.contains(&"ik::unreachable"), "{name}: {:?}", run.diags);
         let printed = read_printed(&run.text, letters(&m));
-        let pts = as_written(&points);
+        let pts = &points;
         let mut k = 0;
         for p in &printed {
             if k < pts.len() && (fk(&m, &p.j).0 - pts[k].tip).norm() < 1e-3 {

@@ -13,8 +13,12 @@ impl Ik {
         (0..2).find_map(|i| {
             let (lo, hi) = self.machine.limits(self.axes[i])?;
             let v = angles[i];
-            (v < lo - LIMIT_SLACK || v > hi + LIMIT_SLACK)
-                .then(|| format!("{} would be {v:.3} deg, outside {lo}..{hi}", self.axes[i].letter()))
+            (v < lo - LIMIT_SLACK || v > hi + LIMIT_SLACK).then(|| {
+                format!(
+                    "{} would be {v:.3} deg, outside {lo}..{hi}",
+                    self.axes[i].letter()
+                )
+            })
         })
     }
 

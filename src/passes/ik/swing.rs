@@ -117,14 +117,13 @@ impl Ik {
         let xyz_mid = [0, 1, 2].map(|i| mid(xyz[i], to[i]));
         let angles_mid = [0, 1].map(|i| mid(angles[i], choice.angles[i]));
         let tip = self.machine.forward(&xyz_mid, angles_mid).tip;
+        // Off the programmed line (through both tips), or off the tip when it stays.
         let line = pose.tip - from_tip;
-        let len2 = line.norm_squared();
-        let t = if len2 > 0.0 {
-            ((tip - from_tip).dot(&line) / len2).clamp(0.0, 1.0)
-        } else {
-            0.0
-        };
-        (tip - (from_tip + line * t)).norm()
+        let off = tip - from_tip;
+        match line.try_normalize(1e-12) {
+            Some(dir) => off.cross(&dir).norm(),
+            None => off.norm(),
+        }
     }
 
     /// The tips and rotaries of the pieces of a swing of rotary `k` from `p` to `q` (see

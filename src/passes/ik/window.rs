@@ -117,6 +117,10 @@ pub fn keeps_position(block: &Block) -> bool {
     }
 }
 
+/// A branch within the limits: its rotary values, their cost from the walked values and
+/// the sines and cosines of the solution.
+type Reached = ([f64; 2], (f64, f64), Turns);
+
 /// Where a way into a new pose comes from: a cell of the pose before, or the joints the
 /// window starts from.
 #[derive(Clone, Copy)]
@@ -224,7 +228,7 @@ impl Ik {
         actual: [Option<f64>; 2],
     ) -> impl Iterator<Item = (usize, Choice)> {
         let mut nearest: Option<([f64; 2], (f64, f64))> = None;
-        let mut found: [Option<([f64; 2], (f64, f64), Turns)>; 2] = [None, None];
+        let mut found: [Option<Reached>; 2] = [None, None];
         for (k, o) in solutions.iter().enumerate() {
             let c = self.candidate(o, walked);
             if nearest.is_none_or(|(_, nc)| Self::less(c.unlimited_cost, nc) == Some(true)) {
@@ -310,7 +314,8 @@ impl Ik {
         let why = flips.then(|| self.no_flip_free(&points));
         let mut next = points.iter();
         for block in pending.drain(..) {
-            let is_pose = matches!(&block.kind, BlockKind::Motion(m) if matches!(m.target, Target::Pose(_)));
+            let is_pose =
+                matches!(&block.kind, BlockKind::Motion(m) if matches!(m.target, Target::Pose(_)));
             if !is_pose {
                 self.track(&block);
                 out.push(block);
@@ -372,7 +377,10 @@ impl Ik {
     /// Why no flip-free choice exists in the window of `points`: from each branch of its
     /// first pose, followed continuously, the first limit it leaves and where.
     fn no_flip_free(&self, points: &[Point]) -> String {
-        let Some(first) = points.iter().position(|p| p.cells.iter().any(Option::is_some)) else {
+        let Some(first) = points
+            .iter()
+            .position(|p| p.cells.iter().any(Option::is_some))
+        else {
             return String::new();
         };
         let start = &points[first];
@@ -439,14 +447,20 @@ impl Ik {
         mut axis: Unit<Vector3<f64>>,
         points: &[Point],
     ) -> Option<(u32, String)> {
-        for p in points.iter().filter(|p| p.cells.iter().any(Option::is_some)) {
+        for p in points
+            .iter()
+            .filter(|p| p.cells.iter().any(Option::is_some))
+        {
             let cur = angles.map(Some);
             let walked = if p.cutting {
                 self.walked_from(axis, p.axis, cur)
             } else {
                 cur
             };
-            let w = [walked[0].unwrap_or(angles[0]), walked[1].unwrap_or(angles[1])];
+            let w = [
+                walked[0].unwrap_or(angles[0]),
+                walked[1].unwrap_or(angles[1]),
+            ];
             angles = self.continuous(p.axis, w);
             axis = p.axis;
             if let Some(why) = self.outside(angles) {
