@@ -629,7 +629,7 @@ impl Ik {
             if !cutting {
                 self.flush(out);
             }
-            self.look(pose.axis, cutting, block.span.line);
+            self.look(pose.axis, cutting, block.span, out);
             self.window.pending.push(block);
             if self.window.full() {
                 self.flush(out);

@@ -15,7 +15,7 @@ use std::fmt::Write as _;
 use nalgebra::{Unit, Vector3};
 
 use super::{Choice, Ik, TIE};
-use crate::ir::{Block, BlockKind, Target};
+use crate::ir::{Block, BlockKind, Span, Target};
 use crate::machine::Turns;
 use crate::machine::angle::near_turn;
 use crate::passes::Output;
@@ -132,9 +132,17 @@ struct From {
 }
 
 impl Ik {
-    /// Adds the pose with tool axis `axis` to the window: the best way to each of its
-    /// branches from those of the pose before.
-    pub(super) fn look(&mut self, axis: Unit<Vector3<f64>>, cutting: bool, line: u32) {
+    /// Adds the pose with tool axis `axis` (at `span`) to the window: the best way to each
+    /// of its branches from those of the pose before. A pose no branch reaches is reported
+    /// at once (`ik::unreachable`), as the block is read: its block will be left out.
+    pub(super) fn look(
+        &mut self,
+        axis: Unit<Vector3<f64>>,
+        cutting: bool,
+        span: Span,
+        out: &mut Output<'_>,
+    ) {
+        let line = span.line;
         let froms: [Option<From>; 2] = match self.window.last_live {
             Some(i) => {
                 let p = &self.window.points[i];
@@ -189,6 +197,8 @@ impl Ik {
         });
         if live {
             self.window.last_live = Some(index);
+        } else {
+            out.diag(self.unreachable(axis).at_span(span));
         }
     }
 
@@ -324,9 +334,9 @@ impl Ik {
             let Some(point) = next.next() else {
                 continue;
             };
-            match chosen(point) {
-                Some(choice) => self.emit(block, &choice, why.as_deref(), out),
-                None => out.diag(self.unreachable(point.axis).at_span(block.span)),
+            // Out of reach: reported when it was read, and left out.
+            if let Some(choice) = chosen(point) {
+                self.emit(block, &choice, why.as_deref(), out);
             }
         }
         points.clear();
