@@ -415,18 +415,19 @@ fn a_flip_no_branch_avoids_is_an_error_that_says_why() {
 /// starting a new cut after a rapid anywhere), as CL points through the machine's FK: a
 /// program that can run without a flip.
 fn feasible(m: &Machine, start: [f64; 2], steps: &[(bool, f64, f64)]) -> Vec<ClPoint> {
-    let range = |i: usize| {
-        m.limits(m.rotary_axes()[i])
-            .map_or((-1e9, 1e9), |(lo, hi)| (lo + 1.0, hi - 1.0))
+    let limits = |i: usize| m.limits(m.rotary_axes()[i]);
+    let range = |i: usize| limits(i).map_or((-180.0, 180.0), |(lo, hi)| (lo + 1.0, hi - 1.0));
+    let clamp = |i: usize, v: f64| match limits(i) {
+        Some((lo, hi)) => v.clamp(lo + 1.0, hi - 1.0),
+        None => v,
     };
-    let clamp = |i: usize, v: f64| v.clamp(range(i).0, range(i).1);
-    let at = |f: f64, i: usize| range(i).0 + (range(i).1 - range(i).0).min(720.0) * f;
+    let at = |f: f64, i: usize| range(i).0 + (range(i).1 - range(i).0) * f;
     let mut r = [at(start[0], 0), at(start[1], 1)];
     let mut out = Vec::new();
     for (k, &(rapid, d0, d1)) in steps.iter().enumerate() {
-        if rapid || k == 0 {
+        if rapid {
             r = [at(d0.abs() / 4.0, 0), at(d1.abs() / 4.0, 1)];
-        } else {
+        } else if k > 0 {
             r = [clamp(0, r[0] + d0), clamp(1, r[1] + d1)];
         }
         let x = k as f64 * 0.7 - 20.0;
@@ -440,7 +441,7 @@ fn feasible(m: &Machine, start: [f64; 2], steps: &[(bool, f64, f64)]) -> Vec<ClP
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(24))]
+    #![proptest_config(ProptestConfig::with_cases(64))]
 
     /// Every feasible generated program compiles without `ik::flip` on every preset, and
     /// its printed program reaches every CL point.

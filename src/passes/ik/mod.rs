@@ -11,12 +11,12 @@
 //!
 //! # Look-ahead
 //! The branch of each pose is not chosen greedily: the poses wait in a window that reaches
-//! the next rapid (at most [`window::MAX_WINDOW`] poses, a bounded look-ahead that keeps the
-//! pass streaming), and dynamic programming over both branches of every pose picks the
-//! sequence with the fewest flips, then the least rotary travel (largest change per move,
-//! then both changes), then the machine's preferred sign (first rotary with a `prefer`)
-//! at the window's start. Branches a limited rotary cannot reach are left out. A long
-//! cutting move is followed along its tool-axis path ([`Ik::walked_from`]), so a turn
+//! the next rapid (at most 4096 poses, or 8192 blocks with those between them: a bounded
+//! look-ahead that keeps the pass streaming), and dynamic programming over both branches
+//! of every pose picks the sequence with the fewest flips, then the least rotary travel
+//! (largest change per move, then both changes), then the machine's preferred sign (first
+//! rotary with a `prefer`) at the window's start. Branches a limited rotary cannot reach are left out. A long
+//! cutting move is followed along its tool-axis path (`Ik::walked_from`), so a turn
 //! never swaps branches through the singularity. A rapid starts a new window: the rotaries
 //! may turn freely there, so a flip the cut after it would need is made at the rapid. A
 //! command or line that clobbers axes, a joint move or an offset ends the window (the
@@ -28,8 +28,8 @@
 //! (a cradle's C table when the tool stands vertical), that rotary keeps its previous
 //! value and the other one turns the tool ([`Machine::hold`]). Leaving the cone in a
 //! cutting move may need a swing of the held rotary: it is spread over the start of the
-//! move ([`Ik::spread_swing`]) in pieces along the programmed line, the tool axis leaning
-//! at most [`swing::SWING_LEAN`] degrees off the programmed one meanwhile, so the tip keeps
+//! move (`Ik::spread_swing`) in pieces along the programmed line, the tool axis leaning
+//! at most 0.02 degrees (`swing::SWING_LEAN`) off the programmed one meanwhile, so the tip keeps
 //! moving at the programmed feed instead of standing in the material while the rotary
 //! turns. A swing above `singular_jump` gets the warning `ik::singular-swing`.
 //!
@@ -200,7 +200,7 @@ pub struct Ik {
     /// The poses waiting for the look-ahead to choose their branches, with the blocks
     /// between them ([`window::Window`]).
     window: window::Window,
-    /// The pieces of a swing being spread ([`Ik::spread_swing`]), kept between blocks so
+    /// The pieces of a swing being spread (`Ik::spread_swing`), kept between blocks so
     /// that spreading allocates nothing.
     swing_buf: Vec<(Point3<f64>, [f64; 2])>,
 }
@@ -641,6 +641,9 @@ impl Ik {
             out.push(block);
         } else if window::keeps_position(&block) {
             self.window.pending.push(block);
+            if self.window.full() {
+                self.flush(out);
+            }
         } else {
             self.flush(out);
             self.track(&block);

@@ -97,9 +97,10 @@ impl Window {
         self.pending.is_empty()
     }
 
-    /// Whether the window holds [`MAX_WINDOW`] poses.
+    /// Whether the window holds [`MAX_WINDOW`] poses, or twice as many blocks (comments
+    /// and commands between the poses count too, so memory stays bounded).
     pub fn full(&self) -> bool {
-        self.points.len() >= MAX_WINDOW
+        self.points.len() >= MAX_WINDOW || self.pending.len() >= 2 * MAX_WINDOW
     }
 }
 
