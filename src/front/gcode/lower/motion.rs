@@ -5,8 +5,8 @@ use super::words::Slots;
 use super::{Lowerer, MM_PER_INCH, MotionMode, Placement};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind,
-    OffsetCode, Span, Target, VerbatimReason,
+    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Dialect, Feed, FeedMode, Joints, Motion,
+    MotionKind, OffsetCode, Span, Target, VerbatimReason,
 };
 
 /// A move as the block writes it, before it is resolved against the modal state.
@@ -234,17 +234,25 @@ impl Lowerer {
     /// The length of a G4 dwell, seconds, when the block gives it in a form the IR knows.
     pub(super) fn dwell_seconds(&self, slots: &Slots<'_, '_>) -> Option<f64> {
         let seconds = match (slots.get('P'), slots.get('S'), slots.axis(Axis::X)) {
-            (Some(p), None, None) => {
-                if self.options.dwell_p_milliseconds {
-                    p.value / 1000.0
-                } else {
-                    p.value
-                }
-            }
+            (Some(p), None, None) => self.p_seconds(p.value),
             (None, Some(s), None) | (None, None, Some(s)) => s.value,
             _ => return None,
         };
         (seconds >= 0.0).then_some(seconds)
+    }
+
+    /// A dwell's P (`G4 P`, and the P of a canned cycle) in seconds. LinuxCNC counts
+    /// seconds (G-code reference: "G4 ... P seconds to dwell", "G82 ... Dwell for the P
+    /// number of seconds"); Fanuc counts milliseconds for both (`G04 P1000` and
+    /// `G82 ... P1000` dwell one second); otherwise `dwell_p_milliseconds` says
+    /// (RepRapFirmware and Marlin count milliseconds and have no cycles).
+    pub(super) fn p_seconds(&self, p: f64) -> f64 {
+        let ms = match self.dialect {
+            Dialect::Linuxcnc => false,
+            Dialect::Fanuc => true,
+            _ => self.options.dwell_p_milliseconds,
+        };
+        if ms { p / 1000.0 } else { p }
     }
 
     /// Millimetres per unit of F: inches per minute convert, inverse time does not.
