@@ -172,8 +172,16 @@ impl Lowerer {
         let pos = self.pos;
         let (Some(x0), Some(y0), Some(z0)) = (pos.get(Axis::X), pos.get(Axis::Y), pos.get(Axis::Z))
         else {
+            let unknown: Vec<String> = [Axis::X, Axis::Y, Axis::Z]
+                .into_iter()
+                .filter(|&a| pos.get(a).is_none())
+                .map(|a| a.letter().to_string())
+                .collect();
             return Err(problem(
-                "the position before the canned cycle is not known",
+                format!(
+                    "the {} position before the canned cycle is not known",
+                    unknown.join(" ")
+                ),
                 "move X, Y and Z to known positions (G0 X.. Y.. Z..) before the cycle",
                 whole,
             ));
