@@ -591,6 +591,17 @@ impl Verbatim {
     pub fn ends_at(&self) -> Option<&Joints> {
         self.cycle.as_ref()?.resolved().map(|c| &c.end)
     }
+
+    /// Follows the line from `pos`: the axes it clobbers become unknown, then those it
+    /// [ends at](Verbatim::ends_at) are known there.
+    pub fn follow(&self, pos: &mut Joints) {
+        pos.forget(self.clobbers);
+        if let Some(end) = self.ends_at() {
+            for a in end.known.iter() {
+                pos.set(a, end.values[a.index()]);
+            }
+        }
+    }
 }
 
 /// How a comment was written.

@@ -102,12 +102,7 @@ impl Tracker {
     /// Follows a line passed through as text: [`Tracker::update`] for a caller that holds
     /// the line only.
     pub fn verbatim(&mut self, v: &Verbatim) {
-        self.pos.forget(v.clobbers);
-        if let Some(end) = v.ends_at() {
-            for a in end.known.iter() {
-                self.pos.set(a, end.values[a.index()]);
-            }
-        }
+        v.follow(&mut self.pos);
     }
 
     /// Follows a move: [`Tracker::update`] for a caller that holds the motion only.

@@ -83,9 +83,10 @@ pub const INFO: PassInfo = PassInfo {
 pub struct ExpandCycles {
     options: Options,
     track: Tracker,
-    /// A cycle the frontend could not follow (inside control flow or a subprogram body)
-    /// is in force: its lines with axis words drill holes this pass cannot place.
-    unfollowed: bool,
+    /// A canned cycle is in force: a line with axis words that the frontend did not
+    /// resolve (inside control flow, a subprogram body called in the middle of a series)
+    /// drills a hole this pass cannot place.
+    in_cycle: bool,
 }
 
 /// The Z axis alone: what the strokes into and out of a hole write.
@@ -151,7 +152,7 @@ impl ExpandCycles {
         Ok(ExpandCycles {
             options,
             track: Tracker::default(),
-            unfollowed: false,
+            in_cycle: false,
         })
     }
 
@@ -159,7 +160,7 @@ impl ExpandCycles {
     fn block(&mut self, mut block: Block, out: &mut Output<'_>) {
         match &mut block.kind {
             BlockKind::Motion(m) => {
-                self.unfollowed = false;
+                self.in_cycle = false;
                 // A G80 written beside the move (Mach3 style) rides on it.
                 if !m.extra.is_empty() {
                     let kept = without_cycle_codes(&m.extra);
@@ -169,7 +170,7 @@ impl ExpandCycles {
                 }
             }
             BlockKind::Command(c) => {
-                if !Self::command(c) {
+                if !self.command(c) {
                     // Only cycle codes were on the line: its comments stay, as a comment line.
                     if block.comments.is_empty() {
                         return;
@@ -191,8 +192,13 @@ impl ExpandCycles {
 
     /// Takes the cycle codes (`G98`, `G99`, `G80`, a cycle code with no hole) out of a
     /// command; false when nothing is left to print.
-    fn command(c: &mut Command) -> bool {
-        if !g_codes(&c.text).any(|g| matches!(g, 800 | 980 | 990) || is_cycle(g)) {
+    fn command(&mut self, c: &mut Command) -> bool {
+        let codes: Vec<u32> = g_codes(&c.text).collect();
+        self.follow_codes(&codes);
+        if !codes
+            .iter()
+            .any(|&g| matches!(g, 800 | 980 | 990) || is_cycle(g))
+        {
             return true;
         }
         c.text = without_cycle_codes(&c.text).into();
@@ -204,6 +210,10 @@ impl ExpandCycles {
     fn verbatim(&mut self, v: &Verbatim, block: &mut Block, out: &mut Output<'_>) -> bool {
         let span = block.span;
         let whole = (0, v.text.len());
+        let codes: Vec<u32> = g_codes(&v.text).collect();
+        let was_in_cycle = self.in_cycle;
+        self.follow_codes(&codes);
+        self.in_cycle |= v.cycle.is_some();
         let cycle = match &v.cycle {
             Some(CycleLine::Resolved(c)) => c,
             Some(CycleLine::Unresolved(p)) => {
@@ -211,27 +221,15 @@ impl ExpandCycles {
                 return false;
             }
             None => {
-                // A cycle the frontend could not follow: inside control flow or a
-                // subprogram body, or after a line it could not evaluate.
-                let codes: Vec<u32> = g_codes(&v.text).collect();
-                let cycle_code = codes.iter().any(|&g| is_cycle(g));
-                if codes
-                    .iter()
-                    .any(|&g| matches!(g, 0..=30 | 50..=59 | 330..=339 | 380..=389 | 800))
-                {
-                    self.unfollowed = false;
-                }
-                self.unfollowed |= cycle_code;
-                if self.unfollowed
-                    && (cycle_code || v.text.contains(['X', 'Y', 'Z', 'x', 'y', 'z']))
-                {
+                let moves = v.text.contains(['X', 'Y', 'Z', 'x', 'y', 'z']);
+                if codes.iter().any(|&g| is_cycle(g)) || (was_in_cycle && self.in_cycle && moves) {
                     Self::error(
                         out,
                         v,
                         span,
                         whole,
-                        "a canned cycle the frontend could not follow (inside control flow or a subprogram body, or after a line it could not evaluate) cannot be drilled as moves".into(),
-                        "expand the subprogram first (expand-subprograms), or write the holes out",
+                        "a canned-cycle line the frontend could not follow (inside control flow or a subprogram body, or after a line it could not evaluate) cannot be drilled as moves".into(),
+                        "start the cycle in the subprogram that lists its holes (expand-subprograms cannot carry a cycle into a call), or write the holes out",
                     );
                 }
                 return false;
@@ -277,6 +275,18 @@ impl ExpandCycles {
             out.push(b);
         }
         true
+    }
+
+    /// Follows the motion codes of a line: a cycle code starts a cycle, `G80` or another
+    /// motion code ends it.
+    fn follow_codes(&mut self, codes: &[u32]) {
+        for &g in codes {
+            if is_cycle(g) {
+                self.in_cycle = true;
+            } else if matches!(g, 0..=30 | 50..=59 | 330..=339 | 380..=389 | 800) {
+                self.in_cycle = false;
+            }
+        }
     }
 
     /// Where the tool is before the cycle: its X, Y and Z must be known.
