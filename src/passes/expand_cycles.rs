@@ -118,7 +118,7 @@ fn g_codes(text: &str) -> impl Iterator<Item = u32> + '_ {
 
 /// Whether G code `g` (× 10) is a canned cycle's.
 fn is_cycle(g: u32) -> bool {
-    matches!(g, 730 | 740 | 760 | 810..=890) && g % 10 == 0
+    matches!(g, 730 | 740 | 760 | 810..=890) && g.is_multiple_of(10)
 }
 
 /// `words` without the cycle codes (G80, G98, G99 and the cycles).
@@ -170,11 +170,12 @@ impl ExpandCycles {
                 }
             }
             BlockKind::Command(c) => {
-                if !self.command(c) {
-                    // Only cycle codes were on the line: its comments stay, as a comment line.
-                    if block.comments.is_empty() {
-                        return;
-                    }
+                let printed = self.command(c);
+                // Only cycle codes were on the line: its comments stay, as a comment line.
+                if !printed && block.comments.is_empty() {
+                    return;
+                }
+                if !printed {
                     block.kind = BlockKind::Comment;
                 }
             }

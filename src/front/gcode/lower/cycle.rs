@@ -8,7 +8,7 @@ use super::{Lowerer, Placement};
 use crate::diag::Diagnostic;
 use crate::ir::cycle::{CannedCycle, CycleLine, CycleProblem};
 use crate::ir::{
-    Axis, AxisSet, Block, BlockKind, Dialect, Feed, FeedMode, Plane, Span, VerbatimReason,
+    Axis, AxisSet, Block, BlockKind, Dialect, Feed, FeedMode, Joints, Plane, Span, VerbatimReason,
 };
 
 /// The canned cycle in force and its sticky words (LinuxCNC's "sticky" R, Z, Q, P: given
@@ -49,6 +49,23 @@ impl Default for CycleModal {
 /// boring, LinuxCNC's lathe threading; it is never resolved).
 fn is_cycle(code: Code) -> bool {
     matches!(code, (73 | 74 | 76 | 81..=89, 0))
+}
+
+/// Where a cycle line leaves X, Y and Z: over its last hole at the retract level (Z
+/// unknown after `G88`, whose retract is the operator's), or where it started when it
+/// drills no hole (Fanuc's `K0`).
+fn end_of(holes: &[[f64; 2]], start: [f64; 3], clear: f64, code: u32) -> Joints {
+    let mut end = Joints::default();
+    let [x, y, z] = match holes.last() {
+        Some(&[x, y]) => [x, y, clear],
+        None => start,
+    };
+    end.set(Axis::X, x);
+    end.set(Axis::Y, y);
+    if code != 88 || holes.is_empty() {
+        end.set(Axis::Z, z);
+    }
+    end
 }
 
 /// A problem with the whole line.
@@ -169,23 +186,7 @@ impl Lowerer {
         }
         let repeats = self.repeats(slots)?;
         let scale = self.unit(Axis::Z);
-        let pos = self.pos;
-        let (Some(x0), Some(y0), Some(z0)) = (pos.get(Axis::X), pos.get(Axis::Y), pos.get(Axis::Z))
-        else {
-            let unknown: Vec<String> = [Axis::X, Axis::Y, Axis::Z]
-                .into_iter()
-                .filter(|&a| pos.get(a).is_none())
-                .map(|a| a.letter().to_string())
-                .collect();
-            return Err(problem(
-                format!(
-                    "the {} position before the canned cycle is not known",
-                    unknown.join(" ")
-                ),
-                "move X, Y and Z to known positions (G0 X.. Y.. Z..) before the cycle",
-                whole,
-            ));
-        };
+        let [x0, y0, z0] = self.cycle_start(whole)?;
         let (Some(r), Some(z)) = (self.cycle.r, self.cycle.z) else {
             let missing = if self.cycle.r.is_none() { "R" } else { "Z" };
             return Err(problem(
@@ -217,7 +218,47 @@ impl Lowerer {
         } else {
             r_ir
         };
-        let mut at = [x0, y0];
+        let holes = self.holes(slots, [x0, y0], repeats);
+        let end = end_of(&holes, [x0, y0, z0], clear, code);
+        Ok(CannedCycle {
+            code,
+            r: r_ir,
+            bottom,
+            clear,
+            holes,
+            q,
+            dwell,
+            feed,
+            end,
+        })
+    }
+
+    /// X, Y and Z before a cycle line: all three must be known.
+    fn cycle_start(&self, whole: (usize, usize)) -> Result<[f64; 3], CycleProblem> {
+        let pos = &self.pos;
+        if let (Some(x), Some(y), Some(z)) = (pos.get(Axis::X), pos.get(Axis::Y), pos.get(Axis::Z))
+        {
+            return Ok([x, y, z]);
+        }
+        let unknown: Vec<String> = [Axis::X, Axis::Y, Axis::Z]
+            .into_iter()
+            .filter(|&a| pos.get(a).is_none())
+            .map(|a| a.letter().to_string())
+            .collect();
+        Err(problem(
+            format!(
+                "the {} position before the canned cycle is not known",
+                unknown.join(" ")
+            ),
+            "move X, Y and Z to known positions (G0 X.. Y.. Z..) before the cycle",
+            whole,
+        ))
+    }
+
+    /// X and Y of the holes of a line, from `start`: the line's X Y (under `G91` added
+    /// again at each repeat; under `G90` the same place each time, as LinuxCNC does).
+    fn holes(&self, slots: &Slots<'_, '_>, start: [f64; 2], repeats: u32) -> Vec<[f64; 2]> {
+        let mut at = start;
         let mut holes = Vec::with_capacity(repeats as usize);
         for _ in 0..repeats {
             for (i, a) in [Axis::X, Axis::Y].into_iter().enumerate() {
@@ -232,30 +273,7 @@ impl Lowerer {
             }
             holes.push(at);
         }
-        let mut end = pos;
-        end.known = AxisSet::EMPTY;
-        if let Some(&[x, y]) = holes.last() {
-            end.set(Axis::X, x);
-            end.set(Axis::Y, y);
-            if code != 88 {
-                // G88's retract is the operator's: Z is not known after it.
-                end.set(Axis::Z, clear);
-            }
-        } else {
-            end = pos;
-            end.known = AxisSet::XYZ;
-        }
-        Ok(CannedCycle {
-            code,
-            r: r_ir,
-            bottom,
-            clear,
-            holes,
-            q,
-            dwell,
-            feed,
-            end,
-        })
+        holes
     }
 
     /// The repeat count: `L` (LinuxCNC, Haas), or `K` under the Fanuc dialect.
