@@ -219,6 +219,14 @@ impl Lowerer {
             r_ir
         };
         let holes = self.holes(slots, [x0, y0], repeats);
+        let values = holes.iter().flatten().chain([&r_ir, &bottom]);
+        if !values.into_iter().all(|v| v.is_finite()) {
+            return Err(problem(
+                "the canned cycle's coordinates are out of range",
+                "write the cycle's X Y Z R in the part's range",
+                whole,
+            ));
+        }
         let end = end_of(&holes, [x0, y0, z0], clear, code);
         Ok(CannedCycle {
             code,
