@@ -43,7 +43,7 @@ use crate::diag::Diagnostic;
 use crate::ir::cycle::{CannedCycle, CycleLine};
 use crate::ir::{
     Axis, AxisSet, Block, BlockKind, Command, Joints, Motion, MotionKind, Span, Target, Tracker,
-    Verbatim,
+    Verbatim, VerbatimReason,
 };
 use crate::num::lexer::{Tok, tokens};
 use crate::num::parse_decimal;
@@ -113,6 +113,14 @@ fn g_codes(text: &str) -> impl Iterator<Item = u32> + '_ {
             parse_decimal(w[1..].trim_start()).map(|v| (v * 10.0).round() as u32)
         }
         _ => None,
+    })
+}
+
+/// Whether `text` has an X, Y or Z word (comments aside).
+fn has_axis_word(text: &str) -> bool {
+    tokens(text).any(|(_, t, _)| {
+        matches!(t, Tok::Word(w) | Tok::Letter(w)
+            if matches!(w.as_bytes()[0].to_ascii_uppercase(), b'X' | b'Y' | b'Z'))
     })
 }
 
@@ -222,15 +230,26 @@ impl ExpandCycles {
                 return false;
             }
             None => {
-                let moves = v.text.contains(['X', 'Y', 'Z', 'x', 'y', 'z']);
+                let moves = has_axis_word(&v.text);
                 if codes.iter().any(|&g| is_cycle(g)) || (was_in_cycle && self.in_cycle && moves) {
+                    let help = match v.reason {
+                        VerbatimReason::Subprogram => {
+                            "expand the subprograms first (--pass expand-subprograms), or write the holes out"
+                        }
+                        VerbatimReason::ControlFlow => {
+                            "write the holes out of the control flow, or leave the cycle to a controller that has it (--emit gcode)"
+                        }
+                        _ => {
+                            "write the holes as plain numbers, start the cycle in the subprogram that lists its holes (expand-subprograms cannot carry a cycle into a call), or write the holes out"
+                        }
+                    };
                     Self::error(
                         out,
                         v,
                         span,
                         whole,
-                        "a canned-cycle line the frontend could not follow (inside control flow or a subprogram body, or after a line it could not evaluate) cannot be drilled as moves".into(),
-                        "start the cycle in the subprogram that lists its holes (expand-subprograms cannot carry a cycle into a call), or write the holes out",
+                        "a canned-cycle line the frontend could not follow (inside control flow or a subprogram body, or with words it could not evaluate) cannot be drilled as moves".into(),
+                        help,
                     );
                 }
                 return false;
