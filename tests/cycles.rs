@@ -584,21 +584,21 @@ M30
     );
 }
 
-/// The dwell P of a cycle counts in the dialect's unit: seconds on LinuxCNC (G-code
-/// reference, G82: "Dwell for the P number of seconds"), milliseconds on Fanuc
-/// (`G82 ... P1000` is one second) and, otherwise, as `G4 P` is read.
+/// The dwell P of a cycle counts as `G4 P` does, on LinuxCNC (seconds for both, G-code
+/// reference, G82: "Dwell for the P number of seconds") and on Fanuc (milliseconds for
+/// both): `gcode_input.dwell_p_milliseconds`, `true` by default.
 #[test]
-fn cycle_dwell_counts_in_the_dialect_unit() {
-    let body = "G21 G90 G17\nG0 X0 Y0 Z5\nG82 X1 Y1 Z-1 R1 P{P} F100\nG80\nM30\n";
-    for (header, p, seconds) in [
-        ("(LinuxCNC)", "0.5", 0.5),
-        ("(FANUC 0i-MF)", "500", 0.5),
-        ("(generic)", "250", 0.25),
-    ] {
-        let program = format!("{header}\n{}", body.replace("{P}", p));
-        let printed = succeeded(&run(&program, "rrf", &[]));
+fn cycle_dwell_counts_as_g4_p() {
+    let body = "G21 G90 G17\nG0 X0 Y0 Z5\nG4 P{P}\nG82 X1 Y1 Z-1 R1 P{P} F100\nG80\nM30\n";
+    for (ms, p, seconds) in [(true, "250", 0.25), (false, "0.5", 0.5)] {
+        let mut preset = ncpost::preset::Preset::builtin("duet-cnc").expect("preset");
+        preset.gcode_input.dwell_p_milliseconds = ms;
+        let program = body.replace("{P}", p);
+        let printed = ncpost::pipeline::compile_str(&program, &preset).expect("drilled");
+        // RepRapFirmware's G4 P counts milliseconds.
         let h = holes(&printed, 1.0 / 1000.0);
-        assert_close_all(&h[1].dwells(), &[seconds], header);
+        assert_close_all(&h[0].dwells(), &[seconds], "G4 P");
+        assert_close_all(&h[1].dwells(), &[seconds], "G82 P");
     }
 }
 

@@ -1,7 +1,7 @@
 //! Canned cycles (`G73`, `G74`, `G81`–`G89`): the line travels as written, resolved to
 //! its holes, planes and end position ([`CycleLine`]) so that the position after it is
 //! the controller's. The semantics are LinuxCNC's (see [`crate::ir::cycle`]); Fanuc's
-//! differ in the repeat word (`K`, or `L` on Haas and the FS15 format) and the dwell unit.
+//! differ in the repeat word (`K`, or `L` on Haas and the FS15 format).
 
 use super::words::{Code, Slots, Word};
 use super::{Lowerer, Placement};

@@ -5,8 +5,8 @@ use super::words::Slots;
 use super::{Lowerer, MM_PER_INCH, MotionMode, Placement};
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Dialect, Feed, FeedMode, Joints, Motion,
-    MotionKind, OffsetCode, Span, Target, VerbatimReason,
+    AXIS_COUNT, Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionKind,
+    OffsetCode, Span, Target, VerbatimReason,
 };
 
 /// A move as the block writes it, before it is resolved against the modal state.
@@ -241,18 +241,19 @@ impl Lowerer {
         (seconds >= 0.0).then_some(seconds)
     }
 
-    /// A dwell's P (`G4 P`, and the P of a canned cycle) in seconds. LinuxCNC counts
-    /// seconds (G-code reference: "G4 ... P seconds to dwell", "G82 ... Dwell for the P
-    /// number of seconds"); Fanuc counts milliseconds for both (`G04 P1000` and
-    /// `G82 ... P1000` dwell one second); otherwise `dwell_p_milliseconds` says
-    /// (RepRapFirmware and Marlin count milliseconds and have no cycles).
+    /// A dwell's P (`G4 P`, and the P of a canned cycle) in seconds: the cycle's P counts
+    /// as `G4 P` does on every controller (LinuxCNC: seconds for both, G-code reference
+    /// "G4 ... P seconds to dwell" and "G82 ... Dwell for the P number of seconds"; Fanuc:
+    /// milliseconds for both, `G04 P1000` and `G82 ... P1000` dwell one second), so one
+    /// option, `dwell_p_milliseconds`, says which. The dialect does not set it: the
+    /// `gcode` backend prints milliseconds unless `gcode.dwell_milliseconds = false`, and
+    /// a LinuxCNC program read in seconds would then come out 1000 times longer.
     pub(super) fn p_seconds(&self, p: f64) -> f64 {
-        let ms = match self.dialect {
-            Dialect::Linuxcnc => false,
-            Dialect::Fanuc => true,
-            _ => self.options.dwell_p_milliseconds,
-        };
-        if ms { p / 1000.0 } else { p }
+        if self.options.dwell_p_milliseconds {
+            p / 1000.0
+        } else {
+            p
+        }
     }
 
     /// Millimetres per unit of F: inches per minute convert, inverse time does not.
