@@ -622,3 +622,20 @@ fn l0_is_refused_and_fanuc_k0_drills_nothing() {
     // K0 stored R, Z and the feed; the next line drills twice, 2 apart, from X0.
     assert_close_all(&xs, &[2.0, 4.0], "K2 after K0");
 }
+
+/// After homing, a G90 cycle that writes X and Y needs only a known Z: the first rapid goes
+/// to the hole, and the moves after the cycle start from it.
+#[test]
+fn g90_cycle_after_homing_needs_only_z() {
+    let program = "G21 G90\nG28\nG0 Z10\nG81 X5 Y5 Z-1 R2 F100\nX8\nG80\nG91 G0 X1\nM30\n";
+    let printed = succeeded(&run(program, "rrf", &[]));
+    let moves = positions(&printed);
+    let last = moves.last().expect("moves");
+    assert_eq!(last.0, "G0 X9", "{printed}");
+    assert_at(last.1, [9.0, 5.0, 10.0], "G91 X1 after the cycle");
+    let drilled: Vec<&(String, [f64; 3])> =
+        moves.iter().filter(|(l, _)| l.starts_with("G1")).collect();
+    assert_eq!(drilled.len(), 2, "{printed}");
+    assert_at(drilled[0].1, [5.0, 5.0, -1.0], "first hole");
+    assert_at(drilled[1].1, [8.0, 5.0, -1.0], "second hole");
+}

@@ -273,8 +273,8 @@ impl ExpandCycles {
                 v,
                 span,
                 whole,
-                "the position before the canned cycle is not known".into(),
-                "move X, Y and Z to known positions before the cycle",
+                "the Z position before the canned cycle is not known".into(),
+                "move Z to a known height (G0 Z..) before the cycle",
             );
             return false;
         };
@@ -309,13 +309,11 @@ impl ExpandCycles {
         }
     }
 
-    /// Where the tool is before the cycle: its X, Y and Z must be known.
+    /// Where the tool is before the cycle: Z must be known (X and Y may be unknown when
+    /// the line writes them in G90: the first rapid goes to the hole).
     fn start(&self, cycle: &CannedCycle) -> Option<Joints> {
         let pos = *self.track.pos();
-        let known = [Axis::X, Axis::Y, Axis::Z]
-            .into_iter()
-            .all(|a| pos.get(a).is_some());
-        (known || cycle.holes.is_empty()).then_some(pos)
+        (pos.get(Axis::Z).is_some() || cycle.holes.is_empty()).then_some(pos)
     }
 
     /// Reports an error at the line of `span`.

@@ -54,16 +54,20 @@ fn is_cycle(code: Code) -> bool {
 /// Where a cycle line leaves X, Y and Z: over its last hole at the retract level (Z
 /// unknown after `G88`, whose retract is the operator's), or where it started when it
 /// drills no hole (Fanuc's `K0`).
-fn end_of(holes: &[[f64; 2]], start: [f64; 3], clear: f64, code: u32) -> Joints {
+fn end_of(holes: &[[f64; 2]], start: &Joints, clear: f64, code: u32) -> Joints {
     let mut end = Joints::default();
-    let [x, y, z] = match holes.last() {
-        Some(&[x, y]) => [x, y, clear],
-        None => start,
+    let Some(&[x, y]) = holes.last() else {
+        for a in [Axis::X, Axis::Y, Axis::Z] {
+            if let Some(v) = start.get(a) {
+                end.set(a, v);
+            }
+        }
+        return end;
     };
     end.set(Axis::X, x);
     end.set(Axis::Y, y);
-    if code != 88 || holes.is_empty() {
-        end.set(Axis::Z, z);
+    if code != 88 {
+        end.set(Axis::Z, clear);
     }
     end
 }
@@ -186,7 +190,7 @@ impl Lowerer {
         }
         let repeats = self.repeats(slots)?;
         let scale = self.unit(Axis::Z);
-        let [x0, y0, z0] = self.cycle_start(whole)?;
+        let [x0, y0, z0] = self.cycle_start(slots, whole)?;
         let (Some(r), Some(z)) = (self.cycle.r, self.cycle.z) else {
             let missing = if self.cycle.r.is_none() { "R" } else { "Z" };
             return Err(problem(
@@ -227,7 +231,7 @@ impl Lowerer {
                 whole,
             ));
         }
-        let end = end_of(&holes, [x0, y0, z0], clear, code);
+        let end = end_of(&holes, &self.pos, clear, code);
         Ok(CannedCycle {
             code,
             r: r_ir,
@@ -241,24 +245,31 @@ impl Lowerer {
         })
     }
 
-    /// X, Y and Z before a cycle line: all three must be known.
-    fn cycle_start(&self, whole: (usize, usize)) -> Result<[f64; 3], CycleProblem> {
+    /// X, Y and Z before a cycle line (IR frame). Z must be known; X and Y too, unless
+    /// the line writes them in absolute mode (an unknown one is then 0 here, and never
+    /// used: every hole takes the written value).
+    fn cycle_start(
+        &self,
+        slots: &Slots<'_, '_>,
+        whole: (usize, usize),
+    ) -> Result<[f64; 3], CycleProblem> {
         let pos = &self.pos;
-        if let (Some(x), Some(y), Some(z)) = (pos.get(Axis::X), pos.get(Axis::Y), pos.get(Axis::Z))
-        {
-            return Ok([x, y, z]);
-        }
+        let needed = |a: Axis| a == Axis::Z || self.relative || slots.axis(a).is_none();
         let unknown: Vec<String> = [Axis::X, Axis::Y, Axis::Z]
             .into_iter()
-            .filter(|&a| pos.get(a).is_none())
+            .filter(|&a| pos.get(a).is_none() && needed(a))
             .map(|a| a.letter().to_string())
             .collect();
+        if unknown.is_empty() {
+            let at = |a: Axis| pos.get(a).unwrap_or(0.0);
+            return Ok([at(Axis::X), at(Axis::Y), at(Axis::Z)]);
+        }
         Err(problem(
             format!(
                 "the {} position before the canned cycle is not known",
                 unknown.join(" ")
             ),
-            "move X, Y and Z to known positions (G0 X.. Y.. Z..) before the cycle",
+            "move to a known position (G0 X.. Y.. Z..) before the cycle, or write X and Y on the cycle line in G90",
             whole,
         ))
     }
