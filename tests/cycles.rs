@@ -280,8 +280,10 @@ fn cycles_are_drilled_as_moves_for_reprapfirmware() {
         .collect();
     assert_close_all(&breaks, &[0.254, 0.254, 0.254], "G73 chip breaks");
     assert_eq!(h[7].retract(), 20.0);
-    // G85 feeds in and out (the feed out goes to the retract height, G98: 20).
-    assert_close_all(&h[8].feed_ends(), &[-4.0, 20.0], "G85 feeds");
+    // G85 feeds in, feeds out to R, then rapids to the retract height (G98: 20), as
+    // LinuxCNC's convert_cycle_g85 does.
+    assert_close_all(&h[8].feed_ends(), &[-4.0, 1.0], "G85 feeds");
+    assert_eq!(h[8].retract(), 20.0);
     // G89: feed in, dwell 0.25 s, feed out.
     assert_close_all(&h[9].feed_ends(), &[-5.0, 20.0], "G89 feeds");
     assert_close_all(&h[9].dwells(), &[0.25], "G89 dwell");
@@ -365,9 +367,11 @@ fn tapping_and_missing_words_are_errors_at_their_line() {
 }
 
 /// LinuxCNC's own test program (shared corpus, see the fixture's first line): a G81 in
-/// a subprogram called three times, with a G91 jog before it.
+/// a subprogram called three times, with a G91 jog before it. LinuxCNC's expected
+/// canonical output (tests/interp/m98m99/01-basics/expected) drills at X1, X2 and X3, to
+/// Z-1 from R0.25, and retracts to R0.25 (G99).
 #[test]
-fn linuxcnc_subprogram_cycle_is_drilled_where_the_position_is_known() {
+fn linuxcnc_subprogram_cycle_is_drilled_at_each_call() {
     let path = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/tests/fixtures/gcode/linuxcnc_m98m99_01_basics.ngc"
@@ -378,25 +382,21 @@ fn linuxcnc_subprogram_cycle_is_drilled_where_the_position_is_known() {
         text(&out).contains("G90 G99 G81 Z-1.0 R0.25"),
         "kept for LinuxCNC"
     );
-    // For RepRapFirmware the body is inlined; the first call drills at X1 (the jog from
-    // X0), to Z-1 at F40, back to R0.25. The next calls jog relative to a position the
-    // frontend no longer follows: their cycles are errors, not wrong holes.
+    // For RepRapFirmware the body is inlined three times; the jog after each cycle starts
+    // where the cycle left the tool.
     let out = run(&program, "rrf", &["--pass", "expand-subprograms"]);
-    let printed = text(&out);
-    // The reader follows absolute moves: up to the jog it cannot resolve.
-    let resolved = printed.split("G91").next().unwrap_or("");
-    let h = holes(resolved, 1.0 / 1000.0);
-    let hole = h.iter().find(|h| h.x == 1.0).expect("hole at X1");
-    assert_eq!(hole.deepest(), -1.0);
-    assert_eq!(hole.retract(), 0.25);
-    assert_eq!(hole.last_feed_rate(), Some(40.0));
-    assert!(!out.status.success());
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("expand-cycles::cycle") && err.contains(":11:"),
-        "{err}"
-    );
-    assert!(!printed.contains("G81") || err.contains("passed through as written"));
+    let printed = succeeded(&out);
+    assert_no_cycle_codes(&printed);
+    let h = holes(&printed, 1.0 / 1000.0);
+    let drilled: Vec<&Hole> = h.iter().filter(|h| !h.feed_ends().is_empty()).collect();
+    let xs: Vec<f64> = drilled.iter().map(|h| h.x).collect();
+    assert_close_all(&xs, &[1.0, 2.0, 3.0], "holes");
+    for hole in drilled {
+        assert_eq!(hole.y, 0.0);
+        assert_close_all(&hole.feed_ends(), &[-1.0], "depth");
+        assert_eq!(hole.retract(), 0.25);
+        assert_eq!(hole.last_feed_rate(), Some(40.0));
+    }
 }
 
 /// Drilled cycle lines carry no "passes through unchanged" warning from the frontend: the
@@ -419,4 +419,223 @@ fn drilled_lines_are_not_said_to_pass_through() {
     );
     let text = String::from_utf8(out).expect("text");
     assert!(!text.contains("G81"), "{text}");
+}
+
+/// The position after each G0/G1 line of a printed program, X Y Z absolute, following
+/// G90/G91 as the controller would (the backends print absolute moves, so G91 is a sign
+/// that a move was left unresolved).
+fn positions(printed: &str) -> Vec<(String, [f64; 3])> {
+    let mut pos = [f64::NAN; 3];
+    let mut relative = false;
+    let mut out = Vec::new();
+    for line in printed.lines() {
+        let line = line.split(';').next().unwrap_or("").trim();
+        let words: Vec<&str> = line.split_whitespace().collect();
+        if words.contains(&"G91") {
+            relative = true;
+        }
+        if words.contains(&"G90") {
+            relative = false;
+        }
+        if !words.iter().any(|w| matches!(*w, "G0" | "G1")) {
+            continue;
+        }
+        for (k, l) in ['X', 'Y', 'Z'].into_iter().enumerate() {
+            if let Some(v) = word(line, l) {
+                pos[k] = if relative { pos[k] + v } else { v };
+            }
+        }
+        out.push((line.to_string(), pos));
+    }
+    out
+}
+
+/// The moves printed after the last line that drills (the last G1 down a hole): where the
+/// program goes once the cycles are done.
+fn after_cycles<'a>(
+    moves: &'a [(String, [f64; 3])],
+    first_after: &str,
+) -> &'a [(String, [f64; 3])] {
+    let at = moves
+        .iter()
+        .position(|(l, _)| l == first_after)
+        .unwrap_or_else(|| panic!("`{first_after}` not printed: {moves:?}"));
+    &moves[at..]
+}
+
+fn assert_at(got: [f64; 3], want: [f64; 3], what: &str) {
+    assert!(
+        got.iter().zip(want).all(|(a, b)| close(*a, b)),
+        "{what}: at {got:?}, want {want:?}"
+    );
+}
+
+/// An absolute (G90) series, then incremental moves: each starts where the last hole
+/// retracted to (G99: the R plane), for RepRapFirmware (drilled) and LinuxCNC (kept).
+#[test]
+fn incremental_moves_after_a_g90_cycle_start_at_the_last_hole() {
+    let program = "\
+G21 G90 G17
+G0 X0 Y0 Z10
+G99 G81 X5 Y5 Z-3 R2 F100
+X10
+G80
+G91 G1 Z-1 F50
+X5
+G90 G0 Z20
+M30
+";
+    let printed = succeeded(&run(program, "rrf", &[]));
+    assert_no_cycle_codes(&printed);
+    let drilling = printed.split("G1 Z1 F50").next().unwrap_or("");
+    let h = holes(drilling, 1.0 / 1000.0);
+    let xy: Vec<(f64, f64)> = h[1..3].iter().map(|h| (h.x, h.y)).collect();
+    assert_eq!(xy, [(5.0, 5.0), (10.0, 5.0)]);
+    for hole in &h[1..3] {
+        assert_close_all(&hole.feed_ends(), &[-3.0], "depth");
+        assert_eq!(hole.retract(), 2.0, "G99: back to R");
+    }
+    let moves = positions(&printed);
+    assert!(!printed.contains("G91"), "every move resolved:\n{printed}");
+    // G91 Z-1 from the R plane of the last hole, then X+5 there, then Z20.
+    let after = after_cycles(&moves, "G1 Z1 F50");
+    assert_at(after[0].1, [10.0, 5.0, 1.0], "G91 Z-1 after the cycle");
+    assert_at(after[1].1, [15.0, 5.0, 1.0], "G91 X5");
+    assert_at(after[2].1, [15.0, 5.0, 20.0], "G90 Z20");
+    // LinuxCNC keeps the cycle and gets the moves after it in absolute coordinates.
+    let printed = succeeded(&run(program, "gcode", &[]));
+    assert!(printed.contains("G99 G81 X5 Y5 Z-3 R2 F100") && printed.contains("G80"));
+    let moves = positions(&printed);
+    let after = moves
+        .iter()
+        .find(|(l, _)| l.starts_with("G1"))
+        .expect("a feed move after the cycle");
+    assert!(!after.0.contains("G91"), "{printed}");
+    assert_at(after.1, [10.0, 5.0, 1.0], "the first move after the cycle");
+}
+
+/// A G91 series (LinuxCNC's example 2 and Fanuc's rule: R from the initial level, Z from
+/// R, X Y stepped at each repeat) over several lines, with G99 and then G98.
+#[test]
+fn g91_series_measures_r_from_the_initial_level_on_every_line() {
+    let program = "\
+G21 G90 G17
+G0 X1 Y2 Z10
+G91 G99 G81 X4 Y5 Z-6 R-8 L2 F100
+X10 Y0
+G98 X0 Y-5
+G80
+G1 Z-1 F50
+G90 G0 X0 Y0
+M30
+";
+    let printed = succeeded(&run(program, "rrf", &[]));
+    assert_no_cycle_codes(&printed);
+    let drilling = printed.split("G1 Z9 F50").next().unwrap_or("");
+    let h = holes(drilling, 1.0 / 1000.0);
+    let drilled: Vec<&Hole> = h.iter().filter(|h| !h.feed_ends().is_empty()).collect();
+    let xy: Vec<(f64, f64)> = drilled.iter().map(|h| (h.x, h.y)).collect();
+    assert_eq!(xy, [(5.0, 7.0), (9.0, 12.0), (19.0, 12.0), (19.0, 7.0)]);
+    // Every line: R = 10 - 8 = 2 and bottom = 2 - 6 = -4 (not from the Z the tool is
+    // at, which would sink each line 8 mm deeper).
+    for hole in &drilled {
+        assert_close_all(&hole.feed_ends(), &[-4.0], "depth");
+    }
+    let retracts: Vec<f64> = drilled.iter().map(|h| h.retract()).collect();
+    assert_close_all(
+        &retracts,
+        &[2.0, 2.0, 2.0, 10.0],
+        "G99 to R, then G98 to Z10",
+    );
+    // After G80, still G91: Z-1 from the initial level the last hole went back to.
+    let moves = positions(&printed);
+    assert!(!printed.contains("G91"), "every move resolved:\n{printed}");
+    let after = after_cycles(&moves, "G1 Z9 F50");
+    assert_at(after[0].1, [19.0, 7.0, 9.0], "G91 Z-1 after the cycle");
+    assert_at(after[1].1, [0.0, 0.0, 9.0], "G90 X0 Y0");
+}
+
+/// G98 returns to the Z before the series began, even after G99 holes of the same series
+/// left the tool at R (LinuxCNC G-code reference, "G98, G99": "retract to the position
+/// that axis was in just before this series of one or more contiguous canned cycles was
+/// started").
+#[test]
+fn g98_returns_to_the_level_before_the_series() {
+    let program = "\
+G21 G90 G17
+G0 X0 Y0 Z15
+G99 G81 X1 Y1 Z-2 R3 F100
+G98 X2
+G83 X3 Q1
+G80
+G0 Z30
+M30
+";
+    let printed = succeeded(&run(program, "grbl", &[]));
+    let h = holes(printed.split("G0 Z30").next().unwrap_or(""), 1.0);
+    let drilled: Vec<&Hole> = h.iter().filter(|h| !h.feed_ends().is_empty()).collect();
+    let retracts: Vec<f64> = drilled.iter().map(|h| h.retract()).collect();
+    assert_close_all(&retracts, &[3.0, 15.0, 15.0], "G99 to R3, then G98 to Z15");
+    // Switching G81 to G83 keeps the series, its R and Z: pecks of 1 from R3 to -2.
+    assert_close_all(
+        &drilled[2].feed_ends(),
+        &[2.0, 1.0, 0.0, -1.0, -2.0],
+        "G83 pecks",
+    );
+}
+
+/// The dwell P of a cycle counts as `G4 P` does, on LinuxCNC (seconds for both, G-code
+/// reference, G82: "Dwell for the P number of seconds") and on Fanuc (milliseconds for
+/// both): `gcode_input.dwell_p_milliseconds`, `true` by default.
+#[test]
+fn cycle_dwell_counts_as_g4_p() {
+    let body = "G21 G90 G17\nG0 X0 Y0 Z5\nG4 P{P}\nG82 X1 Y1 Z-1 R1 P{P} F100\nG80\nM30\n";
+    for (ms, p, seconds) in [(true, "250", 0.25), (false, "0.5", 0.5)] {
+        let mut preset = ncpost::preset::Preset::builtin("duet-cnc").expect("preset");
+        preset.gcode_input.dwell_p_milliseconds = ms;
+        let program = body.replace("{P}", p);
+        let printed = ncpost::pipeline::compile_str(&program, &preset).expect("drilled");
+        // RepRapFirmware's G4 P counts milliseconds.
+        let h = holes(&printed, 1.0 / 1000.0);
+        assert_close_all(&h[0].dwells(), &[seconds], "G4 P");
+        assert_close_all(&h[1].dwells(), &[seconds], "G82 P");
+    }
+}
+
+/// The repeat count: L on LinuxCNC (L0 refused, as LinuxCNC does), K on Fanuc (K0 stores
+/// the cycle's words and drills nothing).
+#[test]
+fn l0_is_refused_and_fanuc_k0_drills_nothing() {
+    let l0 = "G21 G90\nG0 X0 Y0 Z5\nG91 G81 X1 Z-1 R-4 L0 F100\nG80\n";
+    let out = run(l0, "rrf", &[]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("`L0`") && err.contains(":3:"), "{err}");
+    let k0 = "(FANUC)\nG21 G90\nG0 X0 Y0 Z5\nG91 G81 X1 Z-1 R-4 K0 F100\nX2 K2\nG80\n";
+    let printed = succeeded(&run(k0, "rrf", &[]));
+    let h = holes(&printed, 1.0 / 1000.0);
+    let xs: Vec<f64> = h
+        .iter()
+        .filter(|h| !h.feed_ends().is_empty())
+        .map(|h| h.x)
+        .collect();
+    // K0 stored R, Z and the feed; the next line drills twice, 2 apart, from X0.
+    assert_close_all(&xs, &[2.0, 4.0], "K2 after K0");
+}
+
+/// After homing, a G90 cycle that writes X and Y needs only a known Z: the first rapid goes
+/// to the hole, and the moves after the cycle start from it.
+#[test]
+fn g90_cycle_after_homing_needs_only_z() {
+    let program = "G21 G90\nG28\nG0 Z10\nG81 X5 Y5 Z-1 R2 F100\nX8\nG80\nG91 G0 X1\nM30\n";
+    let printed = succeeded(&run(program, "rrf", &[]));
+    let moves = positions(&printed);
+    let last = moves.last().expect("moves");
+    assert_eq!(last.0, "G0 X9", "{printed}");
+    assert_at(last.1, [9.0, 5.0, 10.0], "G91 X1 after the cycle");
+    let drilled: Vec<&(String, [f64; 3])> =
+        moves.iter().filter(|(l, _)| l.starts_with("G1")).collect();
+    assert_eq!(drilled.len(), 2, "{printed}");
+    assert_at(drilled[0].1, [5.0, 5.0, -1.0], "first hole");
+    assert_at(drilled[1].1, [8.0, 5.0, -1.0], "second hole");
 }

@@ -109,3 +109,46 @@ fn fanuc_startup_block_is_a_rapid_with_the_offset() {
     );
     compile_str(&generic, &preset("default", Some(Dialect::Fanuc))).expect("explicit fanuc");
 }
+
+const HELMAN_K3: &str = include_str!("fixtures/dialects/helmancnc_g81_k3_incremental.nc");
+
+/// Fanuc's canned-cycle repeat count is K (Haas and the FS15 format use L): a published
+/// Fanuc example, `G81 G99 G91 X50 Y50 Z-120 R-98 K3`, drills three holes 50 apart,
+/// R 98 below the initial level and the bottom 120 below R, under the `fanuc` dialect
+/// and under `auto` with a Fanuc header. In the generic dialect K is refused.
+#[test]
+fn fanuc_k_repeats_a_cycle() {
+    let auto = format!("(FANUC 0i-MF)\n{HELMAN_K3}");
+    for (program, dialect) in [(HELMAN_K3, Some(Dialect::Fanuc)), (auto.as_str(), None)] {
+        let out = compile_str(program, &preset("duet-cnc", dialect)).expect("drilled");
+        let pos = positions(&out);
+        let feeds: Vec<[Option<f64>; 3]> = pos
+            .iter()
+            .filter(|(l, _)| l.starts_with("G1"))
+            .map(|(_, p)| *p)
+            .collect();
+        let hole = |x: f64| [Some(x), Some(x), Some(-218.0)];
+        assert_eq!(feeds, [hole(50.0), hole(100.0), hole(150.0)], "{out}");
+        // G99: each hole retracts to R (-98), where the tool stays for the G0 moves after.
+        let after: Vec<[Option<f64>; 3]> = pos
+            .iter()
+            .skip_while(|(l, _)| !l.contains("X500"))
+            .map(|(_, p)| *p)
+            .collect();
+        assert_eq!(
+            after,
+            [
+                [Some(500.0), Some(500.0), Some(-98.0)],
+                [Some(0.0), Some(0.0), Some(-98.0)]
+            ],
+            "{out}"
+        );
+    }
+    let diags = compile_str(HELMAN_K3, &preset("duet-cnc", None)).expect_err("K is not L");
+    assert!(
+        diags
+            .iter()
+            .any(|d| d.code == "expand-cycles::cycle" && d.message.contains("`K3`")),
+        "{diags:?}"
+    );
+}

@@ -208,9 +208,9 @@ fn basics_numbers() {
         .filter_map(|(_, j)| j.get(Axis::X))
         .collect();
     // The file has no G20, so X1 is 1 mm. The first repetition starts at the known X0;
-    // the canned cycle (not modelled) leaves every position unknown, so the next two
-    // relative moves pass through as written.
-    assert_eq!(xs, vec![0.0, 1.0]);
+    // the canned cycle leaves the tool over its hole (at R, G99), so the next two
+    // relative moves start there: X2 and X3, as in LinuxCNC's expected output.
+    assert_eq!(xs, vec![0.0, 1.0, 2.0, 3.0]);
     let verbatim = |needle: &str| {
         blocks
             .iter()
@@ -218,7 +218,7 @@ fn basics_numbers() {
             .count()
     };
     assert_eq!(verbatim("G81"), 3);
-    assert_eq!(verbatim("G91 G0 X1"), 2);
+    assert_eq!(verbatim("G91 G0 X1"), 0);
 }
 
 #[test]

@@ -66,6 +66,11 @@ pub fn write_block(out: &mut String, block: &Block) {
                 out.push_str(" clobbers=");
                 axes(out, v.clobbers);
             }
+            if let Some(end) = v.ends_at() {
+                // A canned cycle the frontend resolved: where it leaves the tool.
+                out.push_str(" ends");
+                joints(out, end);
+            }
         }
         BlockKind::Comment => out.push_str("comment"),
     }

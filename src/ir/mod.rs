@@ -19,6 +19,7 @@
 //!    [`Comment`] data.
 //! 6. All numbers are finite `f64`.
 
+pub mod cycle;
 pub mod dump;
 mod modal;
 mod printed;
@@ -578,6 +579,29 @@ pub struct Verbatim {
     pub modes: Option<WrittenModes>,
     /// The line changes none of units, distance and extruder modes.
     pub keeps_modes: bool,
+    /// A canned-cycle line as the frontend resolved it (or why it could not): the
+    /// [`Tracker`] takes the position after it from there.
+    pub cycle: Option<cycle::CycleLine>,
+}
+
+impl Verbatim {
+    /// Where the line leaves the axes it moves and the frontend knows the end of (a
+    /// resolved canned cycle); these axes are also in `clobbers`, so a follower that does
+    /// not read this forgets them.
+    pub fn ends_at(&self) -> Option<&Joints> {
+        self.cycle.as_ref()?.resolved().map(|c| &c.end)
+    }
+
+    /// Follows the line from `pos`: the axes it clobbers become unknown, then those it
+    /// [ends at](Verbatim::ends_at) are known there.
+    pub fn follow(&self, pos: &mut Joints) {
+        pos.forget(self.clobbers);
+        if let Some(end) = self.ends_at() {
+            for a in end.known.iter() {
+                pos.set(a, end.values[a.index()]);
+            }
+        }
+    }
 }
 
 /// How a comment was written.

@@ -14,7 +14,8 @@
 //! - a move to a tool pose (before inverse kinematics) leaves the axes it writes unknown
 //!   as joint values;
 //! - a command or a line passed through as text makes the axes it clobbers unknown
-//!   (homing, probing, macro calls, unevaluated lines);
+//!   (homing, probing, macro calls, unevaluated lines); a canned cycle the frontend
+//!   resolved then leaves them where its last hole retracted ([`Verbatim::ends_at`]);
 //! - a G92-family change puts its offsets in force; G92 on an axis whose position is
 //!   not known makes it known at the declared value (the controller takes the declared
 //!   value as the position there, as the frontend does).
@@ -32,6 +33,7 @@
 
 use super::{
     AXIS_COUNT, AxisSet, Block, BlockKind, Joints, Motion, OffsetChange, OffsetCode, Target,
+    Verbatim,
 };
 
 /// The position (IR frame) and the G92 offsets in force after the blocks seen so far.
@@ -87,7 +89,7 @@ impl Tracker {
         match &block.kind {
             BlockKind::Motion(m) => self.motion(m),
             BlockKind::Command(c) => self.pos.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.pos.forget(v.clobbers),
+            BlockKind::Verbatim(v) => self.verbatim(v),
             BlockKind::Offset(o) => declared = self.offset(o),
             BlockKind::Dwell { .. } | BlockKind::Comment => {}
         }
@@ -95,6 +97,12 @@ impl Tracker {
             forgotten: before.difference(self.pos.known),
             declared,
         }
+    }
+
+    /// Follows a line passed through as text: [`Tracker::update`] for a caller that holds
+    /// the line only.
+    pub fn verbatim(&mut self, v: &Verbatim) {
+        v.follow(&mut self.pos);
     }
 
     /// Follows a move: [`Tracker::update`] for a caller that holds the motion only.

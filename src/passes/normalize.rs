@@ -374,7 +374,7 @@ impl Normalize {
             m.inch = false;
             m.relative = false;
         }
-        self.track.forget(v.clobbers);
+        self.track.verbatim(v);
     }
 }
 

@@ -293,7 +293,7 @@ impl Stats {
             }
             BlockKind::Verbatim(v) => {
                 t.verbatim += 1;
-                self.track.forget(v.clobbers);
+                self.track.verbatim(v);
                 self.planner.push_stop(0.0, ());
             }
             BlockKind::Command(c) if !c.clobbers.is_empty() => {

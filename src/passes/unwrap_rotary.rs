@@ -315,7 +315,7 @@ impl UnwrapRotary {
             }
             BlockKind::Offset(change) => self.offset(change),
             BlockKind::Command(c) => self.prev.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.prev.forget(v.clobbers),
+            BlockKind::Verbatim(v) => v.follow(&mut self.prev),
             _ => {}
         }
         rebase

@@ -190,7 +190,7 @@ impl Backend for JointPlot {
             }
             BlockKind::Dwell { seconds } => self.seconds += seconds.max(0.0),
             BlockKind::Command(c) => self.last.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.last.forget(v.clobbers),
+            BlockKind::Verbatim(v) => v.follow(&mut self.last),
             _ => {}
         }
         Ok(())
@@ -686,7 +686,7 @@ impl Backend for SpeedPlot {
                 }
             }
             BlockKind::Verbatim(v) => {
-                self.last.forget(v.clobbers);
+                v.follow(&mut self.last);
                 self.planner.push_stop(0.0, Item::Other);
             }
             _ => {}

@@ -430,7 +430,7 @@ impl Backend for ToolpathPlot {
                 }
             }
             BlockKind::Verbatim(v) if !v.clobbers.is_empty() => {
-                self.last.forget(v.clobbers);
+                v.follow(&mut self.last);
                 self.broken = true;
             }
             _ => {}

@@ -116,7 +116,7 @@ impl MainState {
                 }
             }
             BlockKind::Verbatim(v) => {
-                self.state.pos.forget(v.clobbers);
+                v.follow(&mut self.state.pos);
                 if v.modes.is_some() && v.reason == crate::ir::VerbatimReason::Unevaluated {
                     // As the frontend: a line it could not evaluate leaves the motion mode
                     // unknown, unless it names one.

@@ -185,6 +185,7 @@ impl Lowerer {
             .filter(|a| p.slots.has(a.letter()))
             .collect();
         self.apply_g_codes(&sorted.g, &mut p.fx);
+        self.follow_cycle_codes(&sorted.g);
         self.apply_m_codes(&sorted.m, &mut p.fx);
         if p.fx.unsupported {
             self.motion = MotionMode::Unsupported;
@@ -425,6 +426,10 @@ impl Lowerer {
     ) -> Option<()> {
         let (text, span, line_no) = (p.text, p.span, p.span.line);
         match self.motion {
+            MotionMode::Unsupported if self.in_cycle() => {
+                out.push(self.cycle_block(text, span, &p.slots, diags));
+                Some(())
+            }
             MotionMode::Unsupported => {
                 diags.push(
                     Diagnostic::warning(

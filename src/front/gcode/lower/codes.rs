@@ -10,7 +10,7 @@ use crate::ir::{Axis, AxisSet, Block, BlockKind, Command, Plane, Span, WrittenMo
 pub(super) fn g_group(code: Code) -> Option<&'static str> {
     Some(match code {
         (80, 0) => "canned cycle cancel",
-        (0 | 1 | 2 | 3 | 33 | 73 | 76 | 81..=89, 0) | (5, _) | (38, _) | (33, 1) => "motion",
+        (0 | 1 | 2 | 3 | 33 | 73 | 74 | 76 | 81..=89, 0) | (5, _) | (38, _) | (33, 1) => "motion",
         (17..=19, _) => "plane",
         (20 | 21, 0) => "units",
         (90 | 91, 0) => "distance",

@@ -19,6 +19,7 @@ use crate::ir::{
 mod arc;
 mod block;
 mod codes;
+mod cycle;
 mod dialect;
 mod motion;
 mod words;
@@ -69,6 +70,8 @@ pub(crate) struct Lowerer {
     /// The dialect in force: the option's, or under `auto` the one the header names
     /// (until the program starts).
     dialect: Dialect,
+    /// The canned cycle in force, its sticky words and the retract mode.
+    cycle: cycle::CycleModal,
 }
 
 /// The lowering state a subprogram body starts from and leaves behind: the IR's
@@ -105,6 +108,7 @@ impl Lowerer {
             program_started: false,
             calls_inline: false,
             dialect: Dialect::Auto,
+            cycle: cycle::CycleModal::default(),
         };
         l.set_dialect(dialect);
         l
@@ -213,6 +217,7 @@ impl Lowerer {
                 clobbers,
                 modes,
                 keeps_modes,
+                cycle: None,
             }),
         )
     }

@@ -234,17 +234,26 @@ impl Lowerer {
     /// The length of a G4 dwell, seconds, when the block gives it in a form the IR knows.
     pub(super) fn dwell_seconds(&self, slots: &Slots<'_, '_>) -> Option<f64> {
         let seconds = match (slots.get('P'), slots.get('S'), slots.axis(Axis::X)) {
-            (Some(p), None, None) => {
-                if self.options.dwell_p_milliseconds {
-                    p.value / 1000.0
-                } else {
-                    p.value
-                }
-            }
+            (Some(p), None, None) => self.p_seconds(p.value),
             (None, Some(s), None) | (None, None, Some(s)) => s.value,
             _ => return None,
         };
         (seconds >= 0.0).then_some(seconds)
+    }
+
+    /// A dwell's P (`G4 P`, and the P of a canned cycle) in seconds: the cycle's P counts
+    /// as `G4 P` does on every controller (LinuxCNC: seconds for both, G-code reference
+    /// "G4 ... P seconds to dwell" and "G82 ... Dwell for the P number of seconds"; Fanuc:
+    /// milliseconds for both, `G04 P1000` and `G82 ... P1000` dwell one second), so one
+    /// option, `dwell_p_milliseconds`, says which. The dialect does not set it: the
+    /// `gcode` backend prints milliseconds unless `gcode.dwell_milliseconds = false`, and
+    /// a LinuxCNC program read in seconds would then come out 1000 times longer.
+    pub(super) fn p_seconds(&self, p: f64) -> f64 {
+        if self.options.dwell_p_milliseconds {
+            p / 1000.0
+        } else {
+            p
+        }
     }
 
     /// Millimetres per unit of F: inches per minute convert, inverse time does not.
