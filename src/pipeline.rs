@@ -179,13 +179,9 @@ impl Builder {
                 .passes
                 .iter()
                 .position(|p| p.name == "expand-subprograms");
-            // The cycles' dwell P counts in the unit G4 P is read in.
-            let ms = self.preset.gcode_input.dwell_p_milliseconds;
-            let mut options = toml::Table::new();
-            options.insert("dwell_p_milliseconds".into(), ms.into());
             let spec = PassSpec {
                 name: "expand-cycles".into(),
-                options,
+                options: toml::Table::new(),
             };
             self.preset.passes.insert(at.map_or(0, |i| i + 1), spec);
         }

@@ -32,9 +32,9 @@
 //! - `chip_break_retract` (mm, default `0.254`, LinuxCNC's 0.010 in): G73's retract.
 //! - `peck_clearance` (mm, default `0.254`): how far above the last peck G83 stops its
 //!   rapid back down.
-//! - `dwell_p_milliseconds`: accepted for presets written before the frontend resolved
-//!   cycles; the dwell's unit is the frontend's (`gcode_input.dwell_p_milliseconds` and
-//!   the dialect), so it has no effect.
+//!
+//! The dwell's unit is the frontend's (`gcode_input.dwell_p_milliseconds` and the
+//! dialect): the frontend reads P.
 
 use serde::{Deserialize, Serialize};
 
@@ -52,9 +52,6 @@ use crate::num::parse_decimal;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Options {
-    /// Kept for presets that set it: the frontend reads the dwell's unit
-    /// (`gcode_input.dwell_p_milliseconds`, and the dialect).
-    pub dwell_p_milliseconds: bool,
     /// G73's retract between pecks, mm.
     pub chip_break_retract: f64,
     /// How far above the last peck G83's rapid back down stops, mm.
@@ -64,7 +61,6 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Options {
-            dwell_p_milliseconds: true,
             chip_break_retract: 0.254,
             peck_clearance: 0.254,
         }
@@ -165,11 +161,14 @@ impl ExpandCycles {
     }
 
     /// One block of the input: puts out what becomes of it.
-    fn block(&mut self, mut block: Block, out: &mut Output<'_>) {
+    /// A move, a comment, a dwell or an offset, changed where it lies: a move ends the
+    /// cycle in force, and a G80 written beside it (Mach3 style) leaves its line. False
+    /// for commands and verbatim lines, where cycle codes and holes are.
+    fn edit(&mut self, block: &mut Block) -> bool {
         match &mut block.kind {
+            BlockKind::Command(_) | BlockKind::Verbatim(_) => return false,
             BlockKind::Motion(m) => {
                 self.in_cycle = false;
-                // A G80 written beside the move (Mach3 style) rides on it.
                 if !m.extra.is_empty() {
                     let kept = without_cycle_codes(&m.extra);
                     if kept.split_whitespace().count() != m.extra.split_whitespace().count() {
@@ -177,6 +176,18 @@ impl ExpandCycles {
                     }
                 }
             }
+            _ => {}
+        }
+        self.track.update(block);
+        true
+    }
+
+    fn block(&mut self, mut block: Block, out: &mut Output<'_>) {
+        if self.edit(&mut block) {
+            out.push(block);
+            return;
+        }
+        match &mut block.kind {
             BlockKind::Command(c) => {
                 let printed = self.command(c);
                 // Only cycle codes were on the line: its comments stay, as a comment line.
@@ -443,8 +454,7 @@ impl ExpandCycles {
 
 impl Pass for ExpandCycles {
     fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
-        for block in blocks.drain(..) {
-            self.block(block, out);
-        }
+        // Moves and comments, most of a program and all of CL data, stay where they lie.
+        super::edit_in_place(self, blocks, out, |p, b, _| p.edit(b), Self::block);
     }
 }
