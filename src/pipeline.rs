@@ -1,6 +1,7 @@
 //! The pipeline: frontend → passes → backend, block by block.
 
 mod relay;
+mod verify;
 
 use std::io::{BufRead, Write};
 use std::sync::Mutex;
@@ -66,6 +67,7 @@ pub struct Builder {
     dump: Option<Box<dyn Write + Send>>,
     timing: Option<crate::motion::Timing>,
     max_repeats: Option<u64>,
+    verify: Option<bool>,
 }
 
 /// A configured pipeline, ready to run.
@@ -75,6 +77,8 @@ pub struct Pipeline {
     progress: Option<Box<dyn FnMut(u64)>>,
     /// Notes from building the pipeline, reported when it runs.
     notes: Vec<Diagnostic>,
+    /// Read the printed program back and check it ([`Builder::verify`]).
+    verify: bool,
 }
 
 /// The passes and the IR dump point: everything between frontend and backend.
@@ -137,6 +141,15 @@ impl Builder {
     /// command line uses [`crate::diag::DEFAULT_LIMIT`]).
     pub fn max_repeats(mut self, n: u64) -> Self {
         self.max_repeats = Some(n);
+        self
+    }
+
+    /// Reads the printed program back as the controller reads it and checks it against
+    /// the programmed path (`--verify`, see [`crate::readback`]); a violated tolerance is
+    /// an error of the run. Unset: on for presets with a `[machine]` or `[polar]` table
+    /// (or as their `[verify] enabled` says).
+    pub fn verify(mut self, on: bool) -> Self {
+        self.verify = Some(on);
         self
     }
 
@@ -233,7 +246,9 @@ impl Builder {
                     })?,
             ),
         };
+        let verify = self.verify.unwrap_or_else(|| verify::by_default(&self.preset));
         Ok(Pipeline {
+            verify,
             preset: self.preset,
             stages: Stages {
                 passes,
@@ -323,8 +338,13 @@ impl Pipeline {
             let mut notes = self.notes.clone();
             report(&mut notes, on_diag, &mut summary, &mut flood);
         }
-        let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
-        let backend = backend_for(&self.preset, &mut out);
+        let (tap, verifier) = match self.verify.then(|| verify::plan(&self.preset)).flatten() {
+            Some((tap, verifier)) => (Some(tap), Some(verifier)),
+            None => (None, None),
+        };
+        let out = std::io::BufWriter::with_capacity(1 << 16, output);
+        let mut tee = verify::Tee::new(out, verifier);
+        let backend = backend_for(&self.preset, &mut tee);
         let progress = &mut self.progress;
         let mut io_error = None;
         let mut deliver = |reports: Vec<Vec<Diagnostic>>, summary: &mut Summary| {
@@ -340,7 +360,7 @@ impl Pipeline {
             report(&mut rest, on_diag, summary, &mut flood);
         };
         let (aborted, written, failed) = {
-            let relay = self.stages.relay(backend);
+            let relay = self.stages.relay(backend, tap);
             relay.drive(front, progress, &mut summary, &mut deliver);
             let aborted = relay.schedule.aborted();
             let written = relay
@@ -353,6 +373,10 @@ impl Pipeline {
         summary.blocks_out = written;
         if let Some(d) = &mut self.stages.dump {
             let _ = d.flush();
+        }
+        let (readback, mut out) = tee.finish();
+        if !aborted && !failed {
+            deliver(vec![readback], &mut summary);
         }
         if aborted {
             deliver(
@@ -477,7 +501,11 @@ fn feed_on_rapids(preset: &Preset) -> bool {
 impl Stages {
     /// The passes and `backend` as the stages of one run, each stage with the IR dump of
     /// its input when the dump point is there.
-    fn relay<'a>(&'a mut self, backend: Box<dyn Backend + Send + 'a>) -> Relay<'a> {
+    fn relay<'a>(
+        &'a mut self,
+        backend: Box<dyn Backend + Send + 'a>,
+        mut tap: Option<verify::TapPoint>,
+    ) -> Relay<'a> {
         let dump_at = self.dump_at;
         let mut dump = self.dump.as_mut();
         let count = self.passes.len();
@@ -494,13 +522,15 @@ impl Stages {
             .enumerate()
             .map(|(i, pass)| {
                 let dump = dump_before(i);
-                Mutex::new(PassStage { pass, dump })
+                let tap = tap.take_if(|t| t.at == i);
+                Mutex::new(PassStage { pass, dump, tap })
             })
             .collect();
         let writer = Mutex::new(WriterStage {
             backend,
             dump: dump_before(count),
             written: 0,
+            tap,
         });
         Relay {
             max_repeats: self.max_repeats,
@@ -536,6 +566,8 @@ const SPARE_BATCHES: usize = 4;
 struct PassStage<'a> {
     pass: &'a mut Box<dyn Pass>,
     dump: Option<&'a mut Box<dyn Write + Send>>,
+    /// The programmed path of `--verify` is this stage's input.
+    tap: Option<verify::TapPoint>,
 }
 
 /// The backend as the last stage of a [`Relay`].
@@ -544,6 +576,8 @@ struct WriterStage<'a> {
     dump: Option<&'a mut Box<dyn Write + Send>>,
     /// Blocks handed to the backend.
     written: u64,
+    /// The programmed path of `--verify` is the backend's input (no machine pass).
+    tap: Option<verify::TapPoint>,
 }
 
 /// What the two threads of [`Pipeline::run_threaded`] share. The schedule gives a stage
@@ -654,6 +688,9 @@ impl Relay<'_> {
         if let Some(d) = stage.dump.as_mut() {
             dump_blocks(d, &batch.blocks);
         }
+        if let Some(t) = stage.tap.as_mut() {
+            t.record(&batch.blocks);
+        }
         if self.failed.load(Ordering::Acquire) {
             batch.blocks.clear();
             return;
@@ -681,6 +718,9 @@ impl Relay<'_> {
     fn write(&self, w: &mut WriterStage<'_>, batch: &mut Batch) {
         if let Some(d) = w.dump.as_mut() {
             dump_blocks(d, &batch.blocks);
+        }
+        if let Some(t) = w.tap.as_mut() {
+            t.record(&batch.blocks);
         }
         // Set by the first write error (a full disk, a closed pipe): nothing more is written.
         if !self.failed.load(Ordering::Acquire) {

@@ -1,0 +1,382 @@
+//! The comparison of the printed program, as [`Reader`](super::Reader) reads it, with the
+//! programmed path ([`Vertex`]es): printed blocks are matched to programmed vertices in
+//! order. A printed end whose tool pose lands on programmed vertex `j` closes segment `j`;
+//! every sample of the printed moves before it must lie within the tolerances of segment
+//! `j`, and the printed time between the two hits is that segment's time.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+
+use super::path::{Kinematics, Pose, Vertex, angle, distance, off_arc, off_segment};
+use super::reader::{Event, Move};
+use super::{Figures, Tolerances};
+use crate::ir::{AXIS_COUNT, Axis, Feed, FeedMode, Joints, MotionKind};
+use crate::machine::polar::Polar;
+use crate::motion::arc::ArcPath;
+use crate::motion::{Model, lerp};
+
+/// The programmed vertices on their way from the tap to the checker.
+pub type Queue = Arc<Mutex<VecDeque<Vertex>>>;
+
+/// Below this tip travel, mm, a programmed segment is a reorientation (no feed time).
+const ZERO_TIP: f64 = 1e-6;
+
+/// Samples of a printed move that leaves its straight line (a rotary or θ turns).
+const CURVE_SAMPLES: usize = 8;
+
+/// Samples of a printed arc.
+const ARC_SAMPLES: usize = 16;
+
+/// The polar printer's screw and valve, as the material and valve figures need them.
+#[derive(Debug, Clone, Copy)]
+struct Screw {
+    e_per_rev: f64,
+    open_delay: f64,
+    close_delay: f64,
+}
+
+/// The valve as the controller drives it: commands take effect after the valve's delay.
+#[derive(Debug, Default)]
+struct Valve {
+    /// Open now (at the checker's clock).
+    open: bool,
+    /// Changes still to come: (seconds, open), in time order.
+    changes: VecDeque<(f64, bool)>,
+    /// When the last open command takes effect, and whether an extrusion start used it.
+    opened: Option<(f64, bool)>,
+    /// When the last close command takes effect, and whether an extrusion end used it.
+    closed: Option<(f64, bool)>,
+    /// An extrusion start (seconds) waiting for its open command.
+    start: Option<(f64, u64, u32)>,
+    /// An extrusion end waiting for its close command.
+    end: Option<(f64, u64, u32)>,
+    /// Screw speed, rev/min.
+    rpm: f64,
+}
+
+/// Compares a printed program with its programmed path, one event at a time.
+pub struct Checker {
+    kin: Kinematics,
+    model: Model,
+    tol: Tolerances,
+    limits: [Option<(f64, f64)>; AXIS_COUNT],
+    screw: Option<Screw>,
+    shared: Queue,
+    queue: VecDeque<Vertex>,
+    /// The programmed vertex last reached.
+    prev: Option<Vertex>,
+    /// The printed pose last computed and its joints.
+    last: Option<(Joints, Pose)>,
+    clock: f64,
+    /// Printed seconds, controller-ideal seconds, tip length and material of the
+    /// segment being traced, and when it began.
+    seg: [f64; 4],
+    /// When the previous segment was reached (where an extrusion ends).
+    seg_start: f64,
+    /// When the first printed move of this segment began (where an extrusion starts).
+    seg_first: Option<f64>,
+    valve: Valve,
+    figures: Figures,
+}
+
+impl Checker {
+    /// A checker for printed joints through `kin`, timed by `model`, taking the
+    /// programmed vertices from `queue`.
+    pub fn new(
+        kin: Kinematics,
+        model: &Model,
+        tol: Tolerances,
+        polar: Option<&Polar>,
+        queue: Queue,
+    ) -> Checker {
+        let mut limits = [None; AXIS_COUNT];
+        match (&kin, polar) {
+            (Kinematics::Machine(m), _) => {
+                for a in Axis::ALL {
+                    limits[a.index()] = m.limits(a);
+                }
+            }
+            (_, Some(p)) => limits[p.r_axis.index()] = Some((p.r_min(), p.r_max)),
+            _ => {}
+        }
+        Checker {
+            kin,
+            model: model.clone().with_timing(crate::motion::Timing::ConstantVelocity),
+            tol,
+            limits,
+            screw: polar.map(|p| Screw {
+                e_per_rev: p.screw.e_per_rev,
+                open_delay: p.valve.open_delay_s,
+                close_delay: p.valve.close_delay_s,
+            }),
+            shared: queue,
+            queue: VecDeque::new(),
+            prev: None,
+            last: None,
+            clock: 0.0,
+            seg: [0.0; 4],
+            seg_start: 0.0,
+            seg_first: None,
+            valve: Valve::default(),
+            figures: Figures::default(),
+        }
+    }
+
+    /// Takes one event of printed line `line`.
+    pub fn event(&mut self, event: &Event, line: u64) {
+        match event {
+            Event::Move(m) => self.on_move(m, line),
+            Event::Dwell(s) => self.advance(*s),
+            Event::Valve(open) => self.on_valve(*open, line),
+            Event::Screw(rpm) => self.valve.rpm = *rpm,
+            Event::Lost(_) => {
+                self.prev = None;
+                self.last = None;
+            }
+        }
+    }
+
+    /// The figures after the last event: programmed vertices never reached and open
+    /// valve business count.
+    pub fn finish(mut self) -> Figures {
+        self.refill();
+        if let Some(v) = self.queue.front() {
+            self.figures.unmatched = self.queue.len() as u64;
+            self.figures.unmatched_line = v.line;
+        }
+        if let Some((_, line, source)) = self.valve.start.take().or(self.valve.end.take()) {
+            self.figures.valve.note(f64::INFINITY, line, source);
+        }
+        self.figures.seconds = self.clock;
+        self.figures
+    }
+
+    /// Moves the clock on by `seconds`, depositing what the screw and valve let through.
+    fn advance(&mut self, seconds: f64) {
+        let end = self.clock + seconds.max(0.0);
+        if let Some(s) = self.screw {
+            let v = &mut self.valve;
+            let mut t = self.clock;
+            let mut open_s = 0.0;
+            while let Some(&(at, open)) = v.changes.front() {
+                if at > end {
+                    break;
+                }
+                if v.open {
+                    open_s += (at - t).max(0.0);
+                }
+                t = t.max(at);
+                v.open = open;
+                v.changes.pop_front();
+            }
+            if v.open {
+                open_s += end - t;
+            }
+            let material = open_s * v.rpm * s.e_per_rev / 60.0;
+            self.seg[3] += material;
+            self.figures.material_printed += material;
+        }
+        self.clock = end;
+    }
+
+    fn on_valve(&mut self, open: bool, line: u64) {
+        let Some(s) = self.screw else { return };
+        let at = self.clock + if open { s.open_delay } else { s.close_delay };
+        let v = &mut self.valve;
+        let k = v.changes.iter().rposition(|c| c.0 <= at).map_or(0, |k| k + 1);
+        v.changes.insert(k, (at, open));
+        let (waiting, own) = if open {
+            (v.start.take(), &mut v.opened)
+        } else {
+            (v.end.take(), &mut v.closed)
+        };
+        *own = Some((at, waiting.is_some()));
+        if let Some((t, _, source)) = waiting {
+            self.figures.valve.note((at - t).abs(), line, source);
+        }
+    }
+
+    /// The programmed vertex the printed path heads for.
+    fn target(&mut self, k: usize) -> Option<Vertex> {
+        if self.queue.len() <= k {
+            self.refill();
+        }
+        self.queue.get(k).copied()
+    }
+
+    fn refill(&mut self) {
+        if let Ok(mut q) = self.shared.lock() {
+            self.queue.extend(q.drain(..));
+        }
+    }
+
+    fn pose(&mut self, j: &Joints) -> Pose {
+        match &self.last {
+            Some((at, pose)) if at == j => *pose,
+            _ => self.kin.printed(j),
+        }
+    }
+
+    fn hits(&self, pose: &Pose, v: &Vertex) -> bool {
+        distance(pose.0, v.tip) <= self.tol.hit_tip() && angle(pose.1, v.axis) <= self.tol.hit_axis()
+    }
+
+    fn on_move(&mut self, m: &Move, line: u64) {
+        self.margins(&m.to, line);
+        let start = self.pose(&m.from);
+        let end = self.kin.printed(&m.to);
+        self.last = Some((m.to, end));
+        // A programmed segment of no length is not printed: step over it.
+        while let (Some(p), Some(t)) = (self.prev, self.target(0)) {
+            if self.hits(&end, &t) || !self.hits(&(p.tip, p.axis), &t) {
+                break;
+            }
+            self.close(line);
+        }
+        self.seg_first.get_or_insert(self.clock);
+        self.advance(m.seconds);
+        let Some(target) = self.target(0) else {
+            return;
+        };
+        let length = self.sample(m, start, &target, line);
+        self.seg[0] += m.seconds;
+        self.seg[2] += length;
+        if target.feed > 0.0 && !target.rapid {
+            self.seg[1] += (length / (target.feed / 60.0)).max(self.cap_time(m));
+        }
+        if self.hits(&end, &target) {
+            self.close(line);
+        } else if self.target(1).is_some_and(|next| self.hits(&end, &next)) {
+            // Vertex `j` was missed: how far its segment ended from it counts, and the
+            // printed path goes on with the next one.
+            self.figures
+                .tip
+                .note(distance(start.0, target.tip), line, target.line);
+            self.close(line);
+            self.close(line);
+        }
+    }
+
+    /// Samples the printed move `m` against the segment leading to `target`; returns
+    /// the printed tip's path length.
+    fn sample(&mut self, m: &Move, start: Pose, target: &Vertex, line: u64) -> f64 {
+        let check = !(target.rapid || target.fresh || m.rapid) && self.prev.is_some();
+        let a = self.prev.map_or(start, |p| (p.tip, p.axis));
+        let arc = m.arc.and_then(|arc| ArcPath::new(&m.from, &m.to, &arc));
+        let n = if arc.is_some() {
+            ARC_SAMPLES
+        } else if self.kin.curves(&m.from, &m.to) {
+            CURVE_SAMPLES
+        } else {
+            1
+        };
+        let mut length = 0.0;
+        let mut last = start.0;
+        for k in 1..=n {
+            let f = k as f64 / n as f64;
+            let j = match &arc {
+                Some(path) => path.point(f),
+                None if k == n => m.to,
+                None => lerp(&m.from, &m.to, f),
+            };
+            let pose = self.kin.printed(&j);
+            length += distance(last, pose.0);
+            last = pose.0;
+            if check {
+                let tip = off_segment(pose.0, a.0, target.tip, target.arc);
+                self.figures.tip.note(tip, line, target.line);
+                let axis = off_arc(pose.1, a.1, target.axis);
+                self.figures.axis.note(axis, line, target.line);
+            }
+        }
+        length
+    }
+
+    /// Seconds the controller needs for `m` at its axes' caps alone (0 without caps).
+    fn cap_time(&self, m: &Move) -> f64 {
+        let feed = Feed {
+            mode: FeedMode::PerMinute,
+            rate: Some(1e12),
+        };
+        let seg = self
+            .model
+            .between(&m.from, &m.to, MotionKind::Linear, &feed);
+        if seg.moves() {
+            seg.length / seg.v_max
+        } else {
+            0.0
+        }
+    }
+
+    /// The printed path has reached the target vertex: its segment's figures.
+    fn close(&mut self, line: u64) {
+        let Some(v) = self.queue.pop_front() else {
+            return;
+        };
+        let [printed, ideal, length, material] = std::mem::take(&mut self.seg);
+        let traced = !v.fresh && self.prev.is_some();
+        if traced && !v.rapid && v.feed > 0.0 && length > ZERO_TIP && ideal > 0.0 {
+            self.figures
+                .time
+                .note((printed - ideal).abs() / ideal, line, v.line);
+        }
+        if self.screw.is_some() {
+            self.figures.material_programmed += v.material;
+            if v.material > 1e-9 {
+                self.figures
+                    .material_block
+                    .note((material - v.material).abs() / v.material, line, v.line);
+            }
+            let was = self.prev.is_some_and(|p| p.material > 1e-9);
+            let is = v.material > 1e-9;
+            if is && !was {
+                self.extrusion_start(line, v.line);
+            } else if was && !is {
+                self.extrusion_end(line, v.line);
+            }
+        }
+        self.figures.segments += 1;
+        self.seg_start = self.clock;
+        self.seg_first = None;
+        self.prev = Some(v);
+    }
+
+    fn extrusion_start(&mut self, line: u64, source: u32) {
+        let t = self.seg_first.unwrap_or(self.seg_start);
+        let v = &mut self.valve;
+        v.end = None;
+        match v.opened {
+            Some((at, false)) => {
+                v.opened = Some((at, true));
+                self.figures.valve.note((at - t).abs(), line, source);
+            }
+            // Kept open across the gap: nothing to time.
+            _ if v.open && v.changes.iter().all(|c| c.1) => {}
+            _ => v.start = Some((t, line, source)),
+        }
+    }
+
+    fn extrusion_end(&mut self, line: u64, source: u32) {
+        let t = self.seg_start;
+        let v = &mut self.valve;
+        v.start = None;
+        match v.closed {
+            Some((at, false)) => {
+                v.closed = Some((at, true));
+                self.figures.valve.note((at - t).abs(), line, source);
+            }
+            _ => v.end = Some((t, line, source)),
+        }
+    }
+
+    fn margins(&mut self, j: &Joints, line: u64) {
+        for a in j.known.iter() {
+            if let (Some((lo, hi)), Some(v)) = (self.limits[a.index()], j.get(a)) {
+                let margin = (v - lo).min(hi - v);
+                if self.figures.margin.is_none_or(|(m, _, _)| margin < m) {
+                    self.figures.margin = Some((margin, a.letter(), line));
+                }
+            }
+        }
+    }
+}
