@@ -84,6 +84,7 @@ pub(super) fn plan(preset: &Preset) -> Option<(TapPoint, Verifier)> {
                 r: p.r_axis,
                 theta: p.theta_axis,
                 center,
+                table: [p.omega_max.to_radians(), p.alpha_max.to_radians()],
             }
         }
         (None, Some(m)) => Kinematics::Machine(Box::new(m.clone())),

@@ -75,6 +75,8 @@ pub struct Checker {
     seg_start: f64,
     /// When the first printed move of this segment began (where an extrusion starts).
     seg_first: Option<f64>,
+    /// A move of this segment started where the controller did not know the position.
+    blind: bool,
     valve: Valve,
     figures: Figures,
 }
@@ -117,6 +119,7 @@ impl Checker {
             seg: [0.0; 4],
             seg_start: 0.0,
             seg_first: None,
+            blind: false,
             valve: Valve::default(),
             figures: Figures::default(),
         }
@@ -233,16 +236,22 @@ impl Checker {
             }
             self.close(line);
         }
-        self.seg_first.get_or_insert(self.clock);
-        self.advance(m.seconds);
         let Some(target) = self.target(0) else {
+            self.advance(m.seconds);
             return;
         };
+        if self.seg_first.is_none() {
+            self.begin(&target, line);
+        }
+        // A move from a position the controller does not know takes no time it can tell.
+        self.blind |= !m.from.known.union(m.to.known).difference(m.from.known).is_empty();
+        self.advance(m.seconds);
         let length = self.sample(m, start, &target, line);
         self.seg[0] += m.seconds;
         self.seg[2] += length;
         if target.feed > 0.0 && !target.rapid {
-            self.seg[1] += (length / (target.feed / 60.0)).max(self.cap_time(m));
+            let speed = (target.feed / 60.0).min(self.kin.speed_cap(&m.from, &m.to));
+            self.seg[1] += (length / speed).max(self.cap_time(m));
         }
         if self.hits(&end, &target) {
             self.close(line);
@@ -314,7 +323,7 @@ impl Checker {
             return;
         };
         let [printed, ideal, length, material] = std::mem::take(&mut self.seg);
-        let traced = !v.fresh && self.prev.is_some();
+        let traced = !v.fresh && self.prev.is_some() && !std::mem::take(&mut self.blind);
         if traced && !v.rapid && v.feed > 0.0 && length > ZERO_TIP && ideal > 0.0 {
             self.figures
                 .time
@@ -327,13 +336,6 @@ impl Checker {
                     .material_block
                     .note((material - v.material).abs() / v.material, line, v.line);
             }
-            let was = self.prev.is_some_and(|p| p.material > 1e-9);
-            let is = v.material > 1e-9;
-            if is && !was {
-                self.extrusion_start(line, v.line);
-            } else if was && !is {
-                self.extrusion_end(line, v.line);
-            }
         }
         self.figures.segments += 1;
         self.seg_start = self.clock;
@@ -341,8 +343,24 @@ impl Checker {
         self.prev = Some(v);
     }
 
+    /// The first printed move of the segment to `target` begins: an extrusion starts
+    /// here, or the one before ended when the previous segment was reached.
+    fn begin(&mut self, target: &Vertex, line: u64) {
+        self.seg_first = Some(self.clock);
+        if self.screw.is_none() {
+            return;
+        }
+        let was = self.prev.is_some_and(|p| p.material > 1e-9);
+        let is = target.material > 1e-9;
+        if is && !was {
+            self.extrusion_start(line, target.line);
+        } else if was && !is {
+            self.extrusion_end(line, target.line);
+        }
+    }
+
     fn extrusion_start(&mut self, line: u64, source: u32) {
-        let t = self.seg_first.unwrap_or(self.seg_start);
+        let t = self.clock;
         let v = &mut self.valve;
         v.end = None;
         match v.opened {

@@ -20,6 +20,8 @@ pub enum Kinematics {
         theta: Axis,
         /// The input XY point on the table's axis.
         center: [f64; 2],
+        /// The table's highest speed, rad/s, and acceleration, rad/s².
+        table: [f64; 2],
     },
     /// X, Y, Z are the tip; the tool axis is +Z.
     Cartesian,
@@ -45,7 +47,9 @@ impl Kinematics {
                 let pose = m.forward(&xyz(j), angles);
                 (pose.tip.coords.into(), pose.axis.into_inner().into())
             }
-            Kinematics::Polar { r, theta, center } => {
+            Kinematics::Polar {
+                r, theta, center, ..
+            } => {
                 let p = polar_point(j, *r, *theta);
                 let z = j.get(Axis::Z).unwrap_or(0.0);
                 ([p.x + center[0], p.y + center[1], z], UP)
@@ -60,6 +64,25 @@ impl Kinematics {
         match self {
             Kinematics::Machine(_) => self.printed(j),
             _ => (xyz(j), UP),
+        }
+    }
+
+    /// The highest tip speed, mm/s, of a printed move from `a` to `b` that the machine
+    /// allows besides its axes' caps: on the polar table a move that turns θ at radius
+    /// `d` from the centre turns the table at `v / d` and accelerates it at up to
+    /// `(3√3 / 8) v² / d²` (a line passing the centre at `d`), so the table's speed and
+    /// acceleration cap the tip at `d · min(ω_max, √(8 α_max / (3√3)))` there.
+    pub fn speed_cap(&self, a: &Joints, b: &Joints) -> f64 {
+        match self {
+            Kinematics::Polar {
+                r, table: [w, al], ..
+            } if self.curves(a, b) => {
+                let radius = |j: &Joints| j.get(*r).unwrap_or(0.0).abs();
+                let d = radius(a).min(radius(b));
+                let k = w.min((8.0 * al / (3.0 * 3f64.sqrt())).sqrt());
+                if d * k > 0.0 { d * k } else { f64::INFINITY }
+            }
+            _ => f64::INFINITY,
         }
     }
 
@@ -104,6 +127,9 @@ pub struct Tap {
     kin: Kinematics,
     tracker: Tracker,
     fresh: bool,
+    /// E taken back by retractions and not yet restored: the slicer's restoring move
+    /// deposits nothing new.
+    retracted: f64,
 }
 
 impl Tap {
@@ -113,6 +139,7 @@ impl Tap {
             kin,
             tracker: Tracker::default(),
             fresh: true,
+            retracted: 0.0,
         }
     }
 
@@ -126,6 +153,7 @@ impl Tap {
     }
 
     fn vertex(&mut self, b: &Block) -> Option<Vertex> {
+        let known = self.tracker.pos().known;
         let before = self.tracker.pos().get(Axis::E);
         let step = self.tracker.update(b);
         let BlockKind::Motion(m) = &b.kind else {
@@ -142,7 +170,11 @@ impl Tap {
             }
         };
         let material = match (before, e) {
-            (Some(a), Some(b)) if b > a => b - a,
+            (Some(a), Some(b)) => {
+                let net = b - a - self.retracted;
+                self.retracted = (-net).max(0.0);
+                net.max(0.0)
+            }
             _ => 0.0,
         };
         let rapid = m.kind == MotionKind::Rapid;
@@ -150,7 +182,13 @@ impl Tap {
             MotionKind::Arc(a) if a.plane == crate::ir::Plane::XY => Some(a.center.into()),
             _ => None,
         };
-        let fresh = std::mem::replace(&mut self.fresh, m.machine_frame);
+        // A move from a position not known (after homing, the first one) has no
+        // programmed path: only its end is compared.
+        let unknown = match &m.target {
+            Target::Joints(j) => !j.known.difference(known).is_empty(),
+            Target::Pose(_) => false,
+        };
+        let fresh = std::mem::replace(&mut self.fresh, m.machine_frame) || unknown;
         Some(Vertex {
             tip,
             axis,
