@@ -24,6 +24,15 @@ const ZERO_TIP: f64 = 1e-6;
 /// Samples of a printed move that leaves its straight line (a rotary or θ turns).
 const CURVE_SAMPLES: usize = 8;
 
+/// Valve commands kept for matching to their extrusion starts and ends.
+const RECENT_COMMANDS: usize = 8;
+
+/// Takes the time in `times` nearest `t`.
+fn nearest(times: &mut VecDeque<f64>, t: f64) -> Option<f64> {
+    let k = (0..times.len()).min_by(|&a, &b| (times[a] - t).abs().total_cmp(&(times[b] - t).abs()))?;
+    times.remove(k)
+}
+
 /// Samples of a printed arc.
 const ARC_SAMPLES: usize = 16;
 
@@ -42,10 +51,10 @@ struct Valve {
     open: bool,
     /// Changes still to come: (seconds, open), in time order.
     changes: VecDeque<(f64, bool)>,
-    /// When the last open command takes effect, and whether an extrusion start used it.
-    opened: Option<(f64, bool)>,
-    /// When the last close command takes effect, and whether an extrusion end used it.
-    closed: Option<(f64, bool)>,
+    /// When the recent open commands not matched to an extrusion start take effect.
+    opens: VecDeque<f64>,
+    /// When the recent close commands not matched to an extrusion end take effect.
+    closes: VecDeque<f64>,
     /// An extrusion start (seconds) waiting for its open command.
     start: Option<(f64, u64, u32)>,
     /// An extrusion end waiting for its close command.
@@ -77,6 +86,8 @@ pub struct Checker {
     seg_first: Option<f64>,
     /// A move of this segment started where the controller did not know the position.
     blind: bool,
+    /// The segment being traced deposits material.
+    extruding: bool,
     valve: Valve,
     figures: Figures,
 }
@@ -120,6 +131,7 @@ impl Checker {
             seg_start: 0.0,
             seg_first: None,
             blind: false,
+            extruding: false,
             valve: Valve::default(),
             figures: Figures::default(),
         }
@@ -189,13 +201,20 @@ impl Checker {
         let k = v.changes.iter().rposition(|c| c.0 <= at).map_or(0, |k| k + 1);
         v.changes.insert(k, (at, open));
         let (waiting, own) = if open {
-            (v.start.take(), &mut v.opened)
+            (v.start.take(), &mut v.opens)
         } else {
-            (v.end.take(), &mut v.closed)
+            (v.end.take(), &mut v.closes)
         };
-        *own = Some((at, waiting.is_some()));
-        if let Some((t, _, source)) = waiting {
-            self.figures.valve.note((at - t).abs(), line, source);
+        match waiting {
+            Some((t, _, source)) => self.figures.valve.note((at - t).abs(), line, source),
+            None => {
+                // The look-ahead issues a command a whole delay ahead, which may be
+                // several extrusions ahead on short ones; a few are kept to match.
+                if own.len() >= RECENT_COMMANDS {
+                    own.pop_front();
+                }
+                own.push_back(at);
+            }
         }
     }
 
@@ -350,8 +369,9 @@ impl Checker {
         if self.screw.is_none() {
             return;
         }
-        let was = self.prev.is_some_and(|p| p.material > 1e-9);
-        let is = target.material > 1e-9;
+        // Segments of no length are stepped over: the state is the last traced one's.
+        let was = std::mem::replace(&mut self.extruding, target.material > 1e-9);
+        let is = self.extruding;
         if is && !was {
             self.extrusion_start(line, target.line);
         } else if was && !is {
@@ -363,14 +383,11 @@ impl Checker {
         let t = self.clock;
         let v = &mut self.valve;
         v.end = None;
-        match v.opened {
-            Some((at, false)) => {
-                v.opened = Some((at, true));
-                self.figures.valve.note((at - t).abs(), line, source);
-            }
+        match nearest(&mut v.opens, t) {
+            Some(at) => self.figures.valve.note((at - t).abs(), line, source),
             // Kept open across the gap: nothing to time.
-            _ if v.open && v.changes.iter().all(|c| c.1) => {}
-            _ => v.start = Some((t, line, source)),
+            None if v.open && v.changes.iter().all(|c| c.1) => {}
+            None => v.start = Some((t, line, source)),
         }
     }
 
@@ -378,12 +395,9 @@ impl Checker {
         let t = self.seg_start;
         let v = &mut self.valve;
         v.start = None;
-        match v.closed {
-            Some((at, false)) => {
-                v.closed = Some((at, true));
-                self.figures.valve.note((at - t).abs(), line, source);
-            }
-            _ => v.end = Some((t, line, source)),
+        match nearest(&mut v.closes, t) {
+            Some(at) => self.figures.valve.note((at - t).abs(), line, source),
+            None => v.end = Some((t, line, source)),
         }
     }
 
