@@ -77,9 +77,10 @@ pub struct Checker {
     /// The printed pose last computed and its joints.
     last: Option<(Joints, Pose)>,
     clock: f64,
-    /// Printed seconds, controller-ideal seconds, tip length and material of the
-    /// segment being traced, and when it began.
-    seg: [f64; 4],
+    /// Of the segment being traced: printed seconds, the seconds at the programmed feed
+    /// and at the slowest feed the machine's limits may ask for (both under the axes'
+    /// caps), the tip's length and the material.
+    seg: [f64; 5],
     /// When the previous segment was reached (where an extrusion ends).
     seg_start: f64,
     /// When the first printed move of this segment began (where an extrusion starts).
@@ -127,7 +128,7 @@ impl Checker {
             prev: None,
             last: None,
             clock: 0.0,
-            seg: [0.0; 4],
+            seg: [0.0; 5],
             seg_start: 0.0,
             seg_first: None,
             blind: false,
@@ -188,7 +189,7 @@ impl Checker {
                 open_s += end - t;
             }
             let material = open_s * v.rpm * s.e_per_rev / 60.0;
-            self.seg[3] += material;
+            self.seg[4] += material;
             self.figures.material_printed += material;
         }
         self.clock = end;
@@ -267,10 +268,13 @@ impl Checker {
         self.advance(m.seconds);
         let length = self.sample(m, start, &target, line);
         self.seg[0] += m.seconds;
-        self.seg[2] += length;
+        self.seg[3] += length;
         if target.feed > 0.0 && !target.rapid {
-            let speed = (target.feed / 60.0).min(self.kin.speed_cap(&m.from, &m.to));
-            self.seg[1] += (length / speed).max(self.cap_time(m));
+            let feed = target.feed / 60.0;
+            let capped = feed.min(self.kin.speed_cap(&m.from, &m.to));
+            let cap_time = self.cap_time(m);
+            self.seg[1] += (length / feed).max(cap_time);
+            self.seg[2] += (length / capped).max(cap_time);
         }
         if self.hits(&end, &target) {
             self.close(line);
@@ -341,12 +345,16 @@ impl Checker {
         let Some(v) = self.queue.pop_front() else {
             return;
         };
-        let [printed, ideal, length, material] = std::mem::take(&mut self.seg);
+        let [printed, fast, slow, length, material] = std::mem::take(&mut self.seg);
         let traced = !v.fresh && self.prev.is_some() && !std::mem::take(&mut self.blind);
-        if traced && !v.rapid && v.feed > 0.0 && length > ZERO_TIP && ideal > 0.0 {
-            self.figures
-                .time
-                .note((printed - ideal).abs() / ideal, line, v.line);
+        if traced && !v.rapid && v.feed > 0.0 && length > ZERO_TIP && fast > 0.0 {
+            // Faster than the programmed feed, or slower than the limits ask for.
+            let error = if printed < fast {
+                (fast - printed) / fast
+            } else {
+                (printed - slow).max(0.0) / slow
+            };
+            self.figures.time.note(error, line, v.line);
         }
         if self.screw.is_some() {
             self.figures.material_programmed += v.material;

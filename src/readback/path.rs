@@ -67,18 +67,29 @@ impl Kinematics {
         }
     }
 
-    /// The highest tip speed, mm/s, of a printed move from `a` to `b` that the machine
-    /// allows besides its axes' caps: on the polar table a move that turns θ at radius
-    /// `d` from the centre turns the table at `v / d` and accelerates it at up to
-    /// `(3√3 / 8) v² / d²` (a line passing the centre at `d`), so the table's speed and
-    /// acceleration cap the tip at `d · min(ω_max, √(8 α_max / (3√3)))` there.
+    /// The lowest tip speed cap, mm/s, the machine's limits besides its axes' caps may
+    /// ask of a printed move from `a` to `b`: a line passing the polar table's centre at
+    /// `d` turns the table at up to `v / d` and accelerates it at up to
+    /// `(3√3 / 8) v² / d²`, so the table's speed and acceleration cap the tip at
+    /// `d · min(ω_max, √(8 α_max / (3√3)))`. `d` is the closest approach of the whole
+    /// line the move lies on (it may lie beyond the move): no slowdown `polar-ik` gives
+    /// near the centre is slower than this.
     pub fn speed_cap(&self, a: &Joints, b: &Joints) -> f64 {
         match self {
             Kinematics::Polar {
-                r, table: [w, al], ..
+                r,
+                theta,
+                table: [w, al],
+                ..
             } if self.curves(a, b) => {
-                let radius = |j: &Joints| j.get(*r).unwrap_or(0.0).abs();
-                let d = radius(a).min(radius(b));
+                let (p, q) = (polar_point(a, *r, *theta), polar_point(b, *r, *theta));
+                let (dx, dy) = (q.x - p.x, q.y - p.y);
+                let len = dx.hypot(dy);
+                let d = if len > 0.0 {
+                    (p.x * dy - p.y * dx).abs() / len
+                } else {
+                    p.x.hypot(p.y)
+                };
                 let k = w.min((8.0 * al / (3.0 * 3f64.sqrt())).sqrt());
                 if d * k > 0.0 { d * k } else { f64::INFINITY }
             }
