@@ -22,7 +22,7 @@ pub type Queue = Arc<Mutex<VecDeque<Vertex>>>;
 const ZERO_TIP: f64 = 1e-6;
 
 /// Samples of a printed move that leaves its straight line (a rotary or θ turns).
-const CURVE_SAMPLES: usize = 8;
+const CURVE_SAMPLES: usize = 4;
 
 /// Valve commands kept for matching to their extrusion starts and ends.
 const RECENT_COMMANDS: usize = 8;
@@ -66,6 +66,8 @@ struct Valve {
 /// Compares a printed program with its programmed path, one event at a time.
 pub struct Checker {
     kin: Kinematics,
+    /// The tool axis can turn (a 5-axis machine): its deviation is measured.
+    turns_tool: bool,
     model: Model,
     tol: Tolerances,
     limits: [Option<(f64, f64)>; AXIS_COUNT],
@@ -114,6 +116,7 @@ impl Checker {
             _ => {}
         }
         Checker {
+            turns_tool: matches!(kin, Kinematics::Machine(_)),
             kin,
             model: model.clone().with_timing(crate::motion::Timing::ConstantVelocity),
             tol,
@@ -266,7 +269,7 @@ impl Checker {
         // A move from a position the controller does not know takes no time it can tell.
         self.blind |= !m.from.known.union(m.to.known).difference(m.from.known).is_empty();
         self.advance(m.seconds);
-        let length = self.sample(m, start, &target, line);
+        let length = self.sample(m, [start, end], &target, line);
         self.seg[0] += m.seconds;
         self.seg[3] += length;
         if target.feed > 0.0 && !target.rapid {
@@ -291,7 +294,7 @@ impl Checker {
 
     /// Samples the printed move `m` against the segment leading to `target`; returns
     /// the printed tip's path length.
-    fn sample(&mut self, m: &Move, start: Pose, target: &Vertex, line: u64) -> f64 {
+    fn sample(&mut self, m: &Move, [start, end]: [Pose; 2], target: &Vertex, line: u64) -> f64 {
         let check = !(target.rapid || target.fresh || m.rapid) && self.prev.is_some();
         let a = self.prev.map_or(start, |p| (p.tip, p.axis));
         let arc = m.arc.and_then(|arc| ArcPath::new(&m.from, &m.to, &arc));
@@ -306,19 +309,20 @@ impl Checker {
         let mut last = start.0;
         for k in 1..=n {
             let f = k as f64 / n as f64;
-            let j = match &arc {
-                Some(path) => path.point(f),
-                None if k == n => m.to,
-                None => lerp(&m.from, &m.to, f),
+            let pose = match &arc {
+                Some(path) => self.kin.printed(&path.point(f)),
+                None if k == n => end,
+                None => self.kin.printed(&lerp(&m.from, &m.to, f)),
             };
-            let pose = self.kin.printed(&j);
             length += distance(last, pose.0);
             last = pose.0;
             if check {
                 let tip = off_segment(pose.0, a.0, target.tip, target.arc);
                 self.figures.tip.note(tip, line, target.line);
-                let axis = off_arc(pose.1, a.1, target.axis);
-                self.figures.axis.note(axis, line, target.line);
+                if self.turns_tool {
+                    let axis = off_arc(pose.1, a.1, target.axis);
+                    self.figures.axis.note(axis, line, target.line);
+                }
             }
         }
         length
