@@ -246,7 +246,9 @@ impl Builder {
                     })?,
             ),
         };
-        let verify = self.verify.unwrap_or_else(|| verify::by_default(&self.preset));
+        let verify = self
+            .verify
+            .unwrap_or_else(|| verify::by_default(&self.preset));
         Ok(Pipeline {
             verify,
             preset: self.preset,
@@ -338,12 +340,8 @@ impl Pipeline {
             let mut notes = self.notes.clone();
             report(&mut notes, on_diag, &mut summary, &mut flood);
         }
-        let (tap, verifier) = match self.verify.then(|| verify::plan(&self.preset)).flatten() {
-            Some((tap, verifier)) => (Some(tap), Some(verifier)),
-            None => (None, None),
-        };
         let out = std::io::BufWriter::with_capacity(1 << 16, output);
-        let mut tee = verify::Tee::new(out, verifier);
+        let (tap, mut tee) = verify::start(self.verify, &self.preset, out);
         let backend = backend_for(&self.preset, &mut tee);
         let progress = &mut self.progress;
         let mut io_error = None;

@@ -25,12 +25,17 @@ fn write(dir: &Path, name: &str, text: &str) -> String {
 
 /// The number after `label` in the report note.
 fn figure(report: &str, label: &str) -> f64 {
-    let at = report.find(label).unwrap_or_else(|| panic!("{label} in {report}")) + label.len();
+    let at = report
+        .find(label)
+        .unwrap_or_else(|| panic!("{label} in {report}"))
+        + label.len();
     let rest = report[at..].trim_start();
     let end = rest
         .find(|c: char| !(c.is_ascii_digit() || c == '.' || c == '-'))
         .unwrap_or(rest.len());
-    rest[..end].parse().unwrap_or_else(|_| panic!("{label} {rest}"))
+    rest[..end]
+        .parse()
+        .unwrap_or_else(|_| panic!("{label} {rest}"))
 }
 
 fn report(stderr: &str) -> &str {
@@ -42,7 +47,8 @@ fn report(stderr: &str) -> &str {
 
 /// The travel program (defect 1): every travel carries the F it was timed at, so
 /// the valve leads are exact on the controller, and the material is exact.
-const TRAVELS: &str = "G21\nG90\nM82\nG0 X10 Y0 F6000\nG1 X20 Y0 E0.4 F1200\nG0 X40 Y0 F6000\nG1 X50 Y0 E0.8 F1200\n";
+const TRAVELS: &str =
+    "G21\nG90\nM82\nG0 X10 Y0 F6000\nG1 X20 Y0 E0.4 F1200\nG0 X40 Y0 F6000\nG1 X50 Y0 E0.8 F1200\n";
 
 #[test]
 fn polar_travels_verify_clean() {
@@ -67,8 +73,16 @@ fn polar_travels_verify_clean() {
     // The printed text itself: every G0 carries an F (an FDM firmware runs G0 at the
     // modal F), and the arm ends at r = 50 on θ = 0.
     let text = std::fs::read_to_string(&out).expect("output written");
-    assert!(text.lines().filter(|l| l.starts_with("G0")).all(|l| l.contains('F')));
-    let last = text.lines().rev().find(|l| l.starts_with("G1")).expect("a G1");
+    assert!(
+        text.lines()
+            .filter(|l| l.starts_with("G0"))
+            .all(|l| l.contains('F'))
+    );
+    let last = text
+        .lines()
+        .rev()
+        .find(|l| l.starts_with("G1"))
+        .expect("a G1");
     assert!(last.contains("X50"), "{last}");
 }
 
@@ -94,7 +108,10 @@ fn wrong_valve_delay_fails() {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{stderr}");
     assert!(stderr.contains("verify::valve"), "{stderr}");
-    assert!((figure(report(&stderr), "valve lead") - 100.0).abs() < 1.0, "{stderr}");
+    assert!(
+        (figure(report(&stderr), "valve lead") - 100.0).abs() < 1.0,
+        "{stderr}"
+    );
     assert!(!out.exists());
     let mut args = args.to_vec();
     args.push("--no-verify");
@@ -159,7 +176,14 @@ fn minimum_speed_above_the_feed_fails_in_json() {
     .expect("built-in preset")
     .replace("min_speed = 0.0", "min_speed = 120.0");
     let config = write(dir.path(), "slow.toml", &preset);
-    let o = ncpost(&["run", "--config", &config, &input, "--message-format", "json"]);
+    let o = ncpost(&[
+        "run",
+        "--config",
+        &config,
+        &input,
+        "--message-format",
+        "json",
+    ]);
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{stderr}");
     let codes: Vec<String> = stderr
@@ -191,4 +215,54 @@ fn plain_presets_do_not_verify_by_default() {
     let stderr = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{stderr}");
     assert!(report(&stderr).contains("time 0.000 %"), "{stderr}");
+}
+
+fn corpus(kind: &str, name: &str) -> String {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/corpus")
+        .join(kind)
+        .join(name);
+    assert!(p.is_file(), "the shared corpus is missing: {}", p.display());
+    p.display().to_string()
+}
+
+/// The four 5-axis presets on real CL data: every figure within its tolerance.
+#[test]
+fn five_axis_presets_verify_clean_on_corpus_cl() {
+    let input = corpus("cl", "aptpp_shimemcunha.apt");
+    for preset in ["trunnion-bc", "head-table", "head-head-ab", "emoc-x5"] {
+        let o = ncpost(&["run", "--preset", preset, &input, "-o", "-"]);
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{preset}: {stderr}");
+        let r = report(&stderr);
+        assert!(figure(r, "tip") <= 0.01, "{preset}: {r}");
+        assert!(figure(r, "tool axis") <= 0.05, "{preset}: {r}");
+        assert!(figure(r, "time") <= 1.0, "{preset}: {r}");
+        assert!(figure(r, "limit margin") >= 0.0, "{preset}: {r}");
+        assert!(figure(r, "verify:") > 1000.0, "{preset}: {r}");
+    }
+}
+
+/// The polar printer on a real Cura print, centred on the table: leads, material and
+/// times within their tolerances.
+#[test]
+fn polar_printer_verifies_a_corpus_slicer_file() {
+    let dir = TempDir::new().expect("temporary directory");
+    let input = corpus("gcode", "lhalb_cura_EVT_v4.gcode");
+    let preset = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/passes/polar-printer.toml"
+    ))
+    .expect("built-in preset")
+    .replace("center = [0.0, 0.0]", "center = [50.0, 45.0]")
+    .replace("r_max = 150.0", "r_max = 300.0");
+    let config = write(dir.path(), "centred.toml", &preset);
+    let o = ncpost(&["run", "--config", &config, &input, "-o", "-"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let r = report(&stderr);
+    assert!(figure(r, "valve lead") <= 1.0, "{r}");
+    assert!(figure(r, "material") <= 0.5, "{r}");
+    assert!(figure(r, "per file (") > 5000.0, "{r}");
+    assert!(figure(r, "time") <= 1.0, "{r}");
 }

@@ -34,7 +34,8 @@ fn pass_option(preset: &Preset, name: &str, key: &str) -> Option<f64> {
     };
     let spec = preset.passes.iter().find(|p| p.name == name)?;
     value(&spec.options).or_else(|| {
-        let defaults: toml::Table = toml::from_str(&(crate::passes::lookup(name)?.defaults)()).ok()?;
+        let defaults: toml::Table =
+            toml::from_str(&(crate::passes::lookup(name)?.defaults)()).ok()?;
         value(&defaults)
     })
 }
@@ -67,7 +68,7 @@ impl TapPoint {
 
 /// The verification of one run of `preset`: the tap and the verifier of the printed
 /// text, or `None` when the preset prints no G-code.
-pub(super) fn plan(preset: &Preset) -> Option<(TapPoint, Verifier)> {
+fn plan(preset: &Preset) -> Option<(TapPoint, Verifier)> {
     if preset.emit == Emit::Ir {
         return None;
     }
@@ -108,6 +109,14 @@ pub(super) fn plan(preset: &Preset) -> Option<(TapPoint, Verifier)> {
         queue,
     };
     Some((tap, Verifier::new(reader, checker, tol, polar.is_some())))
+}
+
+/// The tap and the teed writer of a run of `preset` into `out`, verifying when `on`.
+pub(super) fn start<W: Write>(on: bool, preset: &Preset, out: W) -> (Option<TapPoint>, Tee<W>) {
+    match on.then(|| plan(preset)).flatten() {
+        Some((tap, verifier)) => (Some(tap), Tee::new(out, Some(verifier))),
+        None => (None, Tee::new(out, None)),
+    }
 }
 
 /// The backend's writer with the printed bytes teed to the readback.

@@ -29,7 +29,8 @@ const RECENT_COMMANDS: usize = 8;
 
 /// Takes the time in `times` nearest `t`.
 fn nearest(times: &mut VecDeque<f64>, t: f64) -> Option<f64> {
-    let k = (0..times.len()).min_by(|&a, &b| (times[a] - t).abs().total_cmp(&(times[b] - t).abs()))?;
+    let k =
+        (0..times.len()).min_by(|&a, &b| (times[a] - t).abs().total_cmp(&(times[b] - t).abs()))?;
     times.remove(k)
 }
 
@@ -118,7 +119,9 @@ impl Checker {
         Checker {
             turns_tool: matches!(kin, Kinematics::Machine(_)),
             kin,
-            model: model.clone().with_timing(crate::motion::Timing::ConstantVelocity),
+            model: model
+                .clone()
+                .with_timing(crate::motion::Timing::ConstantVelocity),
             tol,
             limits,
             screw: polar.map(|p| Screw {
@@ -202,7 +205,11 @@ impl Checker {
         let Some(s) = self.screw else { return };
         let at = self.clock + if open { s.open_delay } else { s.close_delay };
         let v = &mut self.valve;
-        let k = v.changes.iter().rposition(|c| c.0 <= at).map_or(0, |k| k + 1);
+        let k = v
+            .changes
+            .iter()
+            .rposition(|c| c.0 <= at)
+            .map_or(0, |k| k + 1);
         v.changes.insert(k, (at, open));
         let (waiting, own) = if open {
             (v.start.take(), &mut v.opens)
@@ -244,7 +251,8 @@ impl Checker {
     }
 
     fn hits(&self, pose: &Pose, v: &Vertex) -> bool {
-        distance(pose.0, v.tip) <= self.tol.hit_tip() && angle(pose.1, v.axis) <= self.tol.hit_axis()
+        distance(pose.0, v.tip) <= self.tol.hit_tip()
+            && angle(pose.1, v.axis) <= self.tol.hit_axis()
     }
 
     fn on_move(&mut self, m: &Move, line: u64) {
@@ -267,7 +275,12 @@ impl Checker {
             self.begin(&target, line);
         }
         // A move from a position the controller does not know takes no time it can tell.
-        self.blind |= !m.from.known.union(m.to.known).difference(m.from.known).is_empty();
+        self.blind |= !m
+            .from
+            .known
+            .union(m.to.known)
+            .difference(m.from.known)
+            .is_empty();
         self.advance(m.seconds);
         let length = self.sample(m, [start, end], &target, line);
         self.seg[0] += m.seconds;
@@ -350,7 +363,8 @@ impl Checker {
             return;
         };
         let [printed, fast, slow, length, material] = std::mem::take(&mut self.seg);
-        let traced = !v.fresh && self.prev.is_some() && !std::mem::take(&mut self.blind);
+        let blind = std::mem::take(&mut self.blind);
+        let traced = !v.fresh && self.prev.is_some() && !blind;
         if traced && !v.rapid && v.feed > 0.0 && length > ZERO_TIP && fast > 0.0 {
             // Faster than the programmed feed, or slower than the limits ask for.
             let error = if printed < fast {
@@ -363,9 +377,11 @@ impl Checker {
         if self.screw.is_some() {
             self.figures.material_programmed += v.material;
             if v.material > 1e-9 {
-                self.figures
-                    .material_block
-                    .note((material - v.material).abs() / v.material, line, v.line);
+                self.figures.material_block.note(
+                    (material - v.material).abs() / v.material,
+                    line,
+                    v.line,
+                );
             }
         }
         self.figures.segments += 1;

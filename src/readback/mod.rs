@@ -255,28 +255,96 @@ impl Figures {
             out.push(Diagnostic::error(code, what).with_help(help.to_string()));
         };
         if over(&self.tip, tol.tip) {
-            fail("verify::tip", format!("the printed tip leaves the programmed path by {:.4} mm{}, beyond the tolerance {} mm", self.tip.value, self.tip.place(), tol.tip), "the machine passes' output does not hold their tolerance on the printed numbers; tighten the pass (densify tip_tolerance, polar-ik tolerance) or set [verify] tip");
+            fail(
+                "verify::tip",
+                format!(
+                    "the printed tip leaves the programmed path by {:.4} mm{}, beyond the tolerance {} mm",
+                    self.tip.value,
+                    self.tip.place(),
+                    tol.tip
+                ),
+                "the machine passes' output does not hold their tolerance on the printed numbers; tighten the pass (densify tip_tolerance, polar-ik tolerance) or set [verify] tip",
+            );
         }
         if over(&self.axis, tol.axis) {
-            fail("verify::axis", format!("the printed tool axis leaves the programmed one by {:.4}°{}, beyond the tolerance {}°", self.axis.value, self.axis.place(), tol.axis), "tighten densify's axis_tolerance, or set [verify] axis");
+            fail(
+                "verify::axis",
+                format!(
+                    "the printed tool axis leaves the programmed one by {:.4}°{}, beyond the tolerance {}°",
+                    self.axis.value,
+                    self.axis.place(),
+                    tol.axis
+                ),
+                "tighten densify's axis_tolerance, or set [verify] axis",
+            );
         }
         if over(&self.time, tol.time) {
-            fail("verify::time", format!("a block takes {:.2} % more or less time on the controller than its programmed feed gives{}, beyond {} %", self.time.value * 100.0, self.time.place(), tol.time * 100.0), "the printed F, the controller's minimum speed or its G0 rule do not give the programmed time; check [machine.controller] / [polar.controller] (min_speed, max_feed, flavour)");
+            fail(
+                "verify::time",
+                format!(
+                    "a block takes {:.2} % more or less time on the controller than its programmed feed gives{}, beyond {} %",
+                    self.time.value * 100.0,
+                    self.time.place(),
+                    tol.time * 100.0
+                ),
+                "the printed F, the controller's minimum speed or its G0 rule do not give the programmed time; check [machine.controller] / [polar.controller] (min_speed, max_feed, flavour)",
+            );
         }
         if polar && over(&self.valve, tol.valve_lead) {
-            fail("verify::valve", format!("a valve command takes effect {:.1} ms away from its extrusion start or end{}, beyond {} ms", self.valve.value * 1000.0, self.valve.place(), tol.valve_lead * 1000.0), "the valve look-ahead timed its commands with another motion time than the controller's; check the controller's caps and G0 rule");
+            fail(
+                "verify::valve",
+                format!(
+                    "a valve command takes effect {:.1} ms away from its extrusion start or end{}, beyond {} ms",
+                    self.valve.value * 1000.0,
+                    self.valve.place(),
+                    tol.valve_lead * 1000.0
+                ),
+                "the valve look-ahead timed its commands with another motion time than the controller's; check the controller's caps and G0 rule",
+            );
         }
         if polar && !(self.material_file() <= tol.material_file * (1.0 + 1e-9)) {
-            fail("verify::material", format!("the printed program deposits {:.5} where {:.5} was programmed ({:.2} %), beyond {} %", self.material_printed, self.material_programmed, self.material_file() * 100.0, tol.material_file * 100.0), "the screw speeds were computed with another motion time than the controller's");
+            fail(
+                "verify::material",
+                format!(
+                    "the printed program deposits {:.5} where {:.5} was programmed ({:.2} %), beyond {} %",
+                    self.material_printed,
+                    self.material_programmed,
+                    self.material_file() * 100.0,
+                    tol.material_file * 100.0
+                ),
+                "the screw speeds were computed with another motion time than the controller's",
+            );
         }
         if polar && over(&self.material_block, tol.material_block) {
-            fail("verify::material-block", format!("a block deposits {:.2} % more or less than programmed{}, beyond {} %", self.material_block.value * 100.0, self.material_block.place(), tol.material_block * 100.0), "the screw speeds were computed with another motion time than the controller's");
+            fail(
+                "verify::material-block",
+                format!(
+                    "a block deposits {:.2} % more or less than programmed{}, beyond {} %",
+                    self.material_block.value * 100.0,
+                    self.material_block.place(),
+                    tol.material_block * 100.0
+                ),
+                "the screw speeds were computed with another motion time than the controller's",
+            );
         }
         if let Some((m, axis, line)) = self.margin.filter(|m| m.0 < 0.0) {
-            fail("verify::limit", format!("{axis} is {:.4} beyond its limit (output line {line})", -m), "the printed program leaves the machine's travel; move the part or change the limits");
+            fail(
+                "verify::limit",
+                format!("{axis} is {:.4} beyond its limit (output line {line})", -m),
+                "the printed program leaves the machine's travel; move the part or change the limits",
+            );
         }
         if self.unmatched > 0 {
-            fail("verify::unmatched", format!("the printed program never reaches {} programmed point{} (the first from input line {})", self.unmatched, if self.unmatched == 1 { "" } else { "s" }, self.unmatched_line), "the printed path ends early or leaves the programmed one");
+            fail(
+                "verify::unmatched",
+                format!(
+                    "the printed program never reaches {} programmed point{} (the first from input line {})",
+                    self.unmatched,
+                    if self.unmatched == 1 { "" } else { "s" },
+                    self.unmatched_line
+                ),
+                "the printed path ends early or leaves the programmed one",
+            );
         }
     }
 }
@@ -338,5 +406,59 @@ impl Verifier {
         let figures = self.checker.finish();
         let diags = figures.diagnostics(&self.tol, self.polar);
         (figures, diags)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ir::Axis;
+    use crate::machine::{Controller, Flavour};
+    use crate::motion::Model;
+    use std::collections::VecDeque;
+    use std::sync::{Arc, Mutex};
+
+    fn vertex(x: f64, feed: f64, line: u32) -> Vertex {
+        Vertex {
+            tip: [x, 0.0, 0.0],
+            axis: [0.0, 0.0, 1.0],
+            feed,
+            rapid: feed == 0.0,
+            fresh: line == 1,
+            material: 0.0,
+            arc: None,
+            line,
+        }
+    }
+
+    /// A cut printed at half its programmed feed, and a printed point 0.02 mm off the
+    /// line: both figures, with their lines, and an error each.
+    #[test]
+    fn figures_of_a_wrong_program() {
+        let queue: Queue = Arc::new(Mutex::new(VecDeque::from([
+            vertex(0.0, 0.0, 1),
+            vertex(10.0, 600.0, 2),
+            vertex(20.0, 600.0, 3),
+        ])));
+        let c = Controller {
+            flavour: Some(Flavour::Linuxcnc),
+            min_speed: 0.0,
+            ..Controller::default()
+        };
+        let model = Model::new(&c);
+        let tol = Tolerances::new(&Settings::default(), 0.01, 0.05);
+        let reader = Reader::new(model.clone(), c.flavour, None);
+        let checker = Checker::new(Kinematics::Cartesian, &model, tol, None, queue);
+        let mut v = Verifier::new(reader, checker, tol, false);
+        v.bytes(b"G0 X0 Y0 Z0\nG1 X10 F300\nG1 X15 Y0.02 F600\nG1 X20 Y0");
+        let (f, diags) = v.finish();
+        assert!((f.time.value - 1.0).abs() < 1e-9, "{f:?}");
+        assert_eq!((f.time.line, f.time.source), (2, 2));
+        assert!((f.tip.value - 0.02).abs() < 1e-9, "{f:?}");
+        assert_eq!((f.tip.line, f.tip.source), (3, 3));
+        assert_eq!(f.segments, 3);
+        let codes: Vec<_> = diags.iter().map(|d| d.code).collect();
+        assert_eq!(codes, ["verify::report", "verify::tip", "verify::time"]);
+        assert!(Axis::X.index() == 0);
     }
 }

@@ -203,7 +203,11 @@ impl Tap {
         Some(Vertex {
             tip,
             axis,
-            feed: if rapid { 0.0 } else { m.feed.rate.unwrap_or(0.0) },
+            feed: if rapid {
+                0.0
+            } else {
+                m.feed.rate.unwrap_or(0.0)
+            },
             rapid,
             fresh,
             material,
@@ -297,7 +301,9 @@ mod tests {
         // An arc of radius 10 about the origin.
         let c = Some([0.0, 0.0, 0.0]);
         let (s, e) = ([10.0, 0.0, 0.0], [0.0, 10.0, 0.0]);
-        assert!((off_segment([7.0, 7.0, 0.0], s, e, c) - (98f64.sqrt() - 10.0).abs()).abs() < 1e-12);
+        assert!(
+            (off_segment([7.0, 7.0, 0.0], s, e, c) - (98f64.sqrt() - 10.0).abs()).abs() < 1e-12
+        );
         let (x, y) = ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
         let h = std::f64::consts::FRAC_1_SQRT_2;
         assert!(off_arc([h, h, 0.0], x, y) < 1e-9);

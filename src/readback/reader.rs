@@ -232,7 +232,14 @@ impl Reader {
             // cannot map: both leave the written axes where the controller says.
             for a in Axis::ALL {
                 if let Some(v) = w.axes[a.index()] {
-                    self.pos.set(a, if a.is_rotary() || a == Axis::E { v } else { v * scale });
+                    self.pos.set(
+                        a,
+                        if a.is_rotary() || a == Axis::E {
+                            v
+                        } else {
+                            v * scale
+                        },
+                    );
                 }
             }
             return None;
@@ -247,7 +254,11 @@ impl Reader {
         let mut to = from;
         for a in Axis::ALL {
             let Some(v) = w.axes[a.index()] else { continue };
-            let v = if a.is_rotary() || a == Axis::E { v } else { v * scale };
+            let v = if a.is_rotary() || a == Axis::E {
+                v
+            } else {
+                v * scale
+            };
             let relative = if a == Axis::E {
                 self.relative_e || !self.absolute
             } else {
