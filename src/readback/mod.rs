@@ -250,7 +250,7 @@ impl Figures {
     }
 
     fn violations(&self, tol: &Tolerances, polar: bool, out: &mut Vec<Diagnostic>) {
-        let over = |w: &Worst, limit: f64| !(w.value <= limit * (1.0 + 1e-9));
+        let over = |w: &Worst, limit: f64| !within(w.value, limit);
         let mut fail = |code: &'static str, what: String, help: &str| {
             out.push(Diagnostic::error(code, what).with_help(help.to_string()));
         };
@@ -302,7 +302,7 @@ impl Figures {
                 "the valve look-ahead timed its commands with another motion time than the controller's; check the controller's caps and G0 rule",
             );
         }
-        if polar && !(self.material_file() <= tol.material_file * (1.0 + 1e-9)) {
+        if polar && !within(self.material_file(), tol.material_file) {
             fail(
                 "verify::material",
                 format!(
@@ -347,6 +347,11 @@ impl Figures {
             );
         }
     }
+}
+
+/// Whether `value` is within `limit` (a value that is not a number is not).
+fn within(value: f64, limit: f64) -> bool {
+    value <= limit * (1.0 + 1e-9)
 }
 
 /// Reads the printed text as it is written (bytes, split into lines here) and checks it.

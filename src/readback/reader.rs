@@ -12,6 +12,9 @@ use crate::num::lexer::{Tok, tokens};
 use crate::num::parse_decimal;
 
 /// What one printed line does, as far as the verification needs it.
+// Returned for each printed line and taken at once, never stored: boxing the move would
+// cost an allocation per block.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Event {
     /// A move, with the seconds the controller takes for it.
@@ -121,10 +124,10 @@ impl Reader {
     /// Reads one line (without its terminator).
     pub fn line(&mut self, line: &str) -> Option<Event> {
         let code = line.split(';').next().unwrap_or("");
-        if !self.valve_open.is_empty() {
-            if let Some(e) = self.polar_command(code) {
-                return Some(e);
-            }
+        if !self.valve_open.is_empty()
+            && let Some(e) = self.polar_command(code)
+        {
+            return Some(e);
         }
         let mut words = Words::default();
         for (_, tok, _) in tokens(code) {
