@@ -292,9 +292,10 @@ impl Checker {
             self.seg[1] += (length / feed).max(cap_time);
             self.seg[2] += (length / capped).max(cap_time);
         }
-        if self.hits(&end, &target) {
+        let complete = self.kin.complete(&m.to);
+        if (complete && self.hits(&end, &target)) || (!complete && target.partial) {
             self.close(line);
-        } else if self.target(1).is_some_and(|next| self.hits(&end, &next)) {
+        } else if complete && self.target(1).is_some_and(|next| self.hits(&end, &next)) {
             // Vertex `j` was missed: how far its segment ended from it counts, and the
             // printed path goes on with the next one.
             self.figures
@@ -308,7 +309,7 @@ impl Checker {
     /// Samples the printed move `m` against the segment leading to `target`; returns
     /// the printed tip's path length.
     fn sample(&mut self, m: &Move, [start, end]: [Pose; 2], target: &Vertex, line: u64) -> f64 {
-        let check = !(target.rapid || target.fresh || m.rapid) && self.prev.is_some();
+        let check = !(target.rapid || target.fresh || m.rapid || self.blind) && self.prev.is_some();
         let a = self.prev.map_or(start, |p| (p.tip, p.axis));
         let arc = m.arc.and_then(|arc| ArcPath::new(&m.from, &m.to, &arc));
         let n = if arc.is_some() {

@@ -432,6 +432,7 @@ mod tests {
             fresh: line == 1,
             material: 0.0,
             arc: None,
+            partial: false,
             line,
         }
     }

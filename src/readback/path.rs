@@ -97,6 +97,18 @@ impl Kinematics {
         }
     }
 
+    /// Whether the controller knows every axis the tool pose of `j` depends on.
+    pub fn complete(&self, j: &Joints) -> bool {
+        let known = |axes: &[Axis]| axes.iter().all(|&a| j.known.contains(a));
+        match self {
+            Kinematics::Machine(m) => {
+                known(&[Axis::X, Axis::Y, Axis::Z]) && known(&m.rotary_axes())
+            }
+            Kinematics::Polar { r, theta, .. } => known(&[*r, *theta, Axis::Z]),
+            Kinematics::Cartesian => known(&[Axis::X, Axis::Y, Axis::Z]),
+        }
+    }
+
     /// Whether a printed move from `a` to `b` can leave the straight line between its
     /// ends in the programmed frame (a rotary or θ changes).
     pub fn curves(&self, a: &Joints, b: &Joints) -> bool {
@@ -128,6 +140,9 @@ pub struct Vertex {
     /// An arc's centre and whether it runs in the XY plane (then the deviation is
     /// radial).
     pub arc: Option<[f64; 3]>,
+    /// The target leaves X, Y or Z unknown (before homing ends, say): a printed end the
+    /// controller does not know all of reaches it.
+    pub partial: bool,
     /// Source line.
     pub line: u32,
 }
@@ -212,6 +227,12 @@ impl Tap {
             fresh,
             material,
             arc,
+            partial: match &m.target {
+                Target::Joints(j) => [Axis::X, Axis::Y, Axis::Z]
+                    .iter()
+                    .any(|&a| !j.known.contains(a)),
+                Target::Pose(_) => false,
+            },
             line: b.span.line,
         })
     }
