@@ -97,15 +97,14 @@ impl Kinematics {
         }
     }
 
-    /// Whether the controller knows every axis the tool pose of `j` depends on.
+    /// Whether the controller knows the axes the tool's place in the plane depends on
+    /// at `j` (an unknown Z counts as 0 on both sides of the comparison).
     pub fn complete(&self, j: &Joints) -> bool {
         let known = |axes: &[Axis]| axes.iter().all(|&a| j.known.contains(a));
         match self {
-            Kinematics::Machine(m) => {
-                known(&[Axis::X, Axis::Y, Axis::Z]) && known(&m.rotary_axes())
-            }
-            Kinematics::Polar { r, theta, .. } => known(&[*r, *theta, Axis::Z]),
-            Kinematics::Cartesian => known(&[Axis::X, Axis::Y, Axis::Z]),
+            Kinematics::Machine(m) => known(&[Axis::X, Axis::Y]) && known(&m.rotary_axes()),
+            Kinematics::Polar { r, theta, .. } => known(&[*r, *theta]),
+            Kinematics::Cartesian => known(&[Axis::X, Axis::Y]),
         }
     }
 
@@ -140,8 +139,9 @@ pub struct Vertex {
     /// An arc's centre and whether it runs in the XY plane (then the deviation is
     /// radial).
     pub arc: Option<[f64; 3]>,
-    /// The target leaves X, Y or Z unknown (before homing ends, say): a printed end the
-    /// controller does not know all of reaches it.
+    /// The target leaves X or Y unknown (before homing ends, say): a printed end whose
+    /// place in the plane the controller does not know reaches it. (An unknown Z counts
+    /// as 0 on both sides.)
     pub partial: bool,
     /// Source line.
     pub line: u32,
@@ -228,9 +228,7 @@ impl Tap {
             material,
             arc,
             partial: match &m.target {
-                Target::Joints(j) => [Axis::X, Axis::Y, Axis::Z]
-                    .iter()
-                    .any(|&a| !j.known.contains(a)),
+                Target::Joints(j) => !(j.known.contains(Axis::X) && j.known.contains(Axis::Y)),
                 Target::Pose(_) => false,
             },
             line: b.span.line,
