@@ -526,10 +526,10 @@ fn run(
     verify: Option<bool>,
 ) -> ExitCode {
     let builder = match builder(args, emit, dump_after) {
-        Ok(b) => match verify {
-            Some(on) => b.verify(on),
-            None => b,
-        },
+        Ok(b) => {
+            let on = verify.unwrap_or_else(|| ncpost::pipeline::verify_by_default(b.preset_ref()));
+            b.verify(on)
+        }
         Err(e) => return usage(e.message),
     };
     let source = match args.from.unwrap_or_else(|| from_extension(&args.input)) {

@@ -3,6 +3,8 @@
 mod relay;
 mod verify;
 
+pub use verify::by_default as verify_by_default;
+
 use std::io::{BufRead, Write};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -78,7 +80,7 @@ pub struct Pipeline {
     /// Notes from building the pipeline, reported when it runs.
     notes: Vec<Diagnostic>,
     /// Read the printed program back and check it ([`Builder::verify`]).
-    verify: bool,
+    verify: verify::Mode,
 }
 
 /// The passes and the IR dump point: everything between frontend and backend.
@@ -146,8 +148,9 @@ impl Builder {
 
     /// Reads the printed program back as the controller reads it and checks it against
     /// the programmed path (`--verify`, see [`crate::readback`]); a violated tolerance is
-    /// an error of the run. Unset: on for presets with a `[machine]` or `[polar]` table
-    /// (or as their `[verify] enabled` says).
+    /// an error of the run. Unset: as the preset's `[verify] enabled` says, else off (the
+    /// command line turns it on for presets with a `[machine]` or `[polar]` table:
+    /// [`verify_by_default`]).
     pub fn verify(mut self, on: bool) -> Self {
         self.verify = Some(on);
         self
@@ -246,9 +249,7 @@ impl Builder {
                     })?,
             ),
         };
-        let verify = self
-            .verify
-            .unwrap_or_else(|| verify::by_default(&self.preset));
+        let verify = verify::mode(self.verify, &self.preset, self.timing);
         Ok(Pipeline {
             verify,
             preset: self.preset,
@@ -341,7 +342,7 @@ impl Pipeline {
             report(&mut notes, on_diag, &mut summary, &mut flood);
         }
         let out = std::io::BufWriter::with_capacity(1 << 16, output);
-        let (tap, mut tee) = verify::start(self.verify, &self.preset, out);
+        let (tap, mut tee) = verify::start(&self.verify, &self.preset, out);
         let backend = backend_for(&self.preset, &mut tee);
         let progress = &mut self.progress;
         let mut io_error = None;

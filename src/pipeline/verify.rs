@@ -10,16 +10,39 @@ use std::sync::{Arc, Mutex};
 
 use crate::diag::Diagnostic;
 use crate::ir::Block;
-use crate::motion::Model;
+use crate::motion::{Model, Timing};
 use crate::preset::{Emit, Preset};
 use crate::readback::{Checker, Kinematics, Queue, Reader, Tap, Tolerances, Verifier};
 
 /// The passes the programmed path is tapped before (the first of them in the preset).
 const MACHINE_PASSES: [&str; 3] = ["ik", "polar-ik", "densify"];
 
-/// Whether `preset` verifies when the run does not say: its `[verify] enabled`, else when
-/// it has a `[machine]` or `[polar]` table (and prints G-code).
-pub(super) fn by_default(preset: &Preset) -> bool {
+/// Whether and how a pipeline verifies.
+pub(super) struct Mode {
+    on: bool,
+    /// The run-wide timing (`--timing`), over the controller's.
+    timing: Option<Timing>,
+}
+
+/// The mode of a pipeline of `preset`: `on` when the run says, else the preset's
+/// `[verify] enabled`, else off.
+pub(super) fn mode(on: Option<bool>, preset: &Preset, timing: Option<Timing>) -> Mode {
+    Mode {
+        on: on.or(preset.verify.enabled).unwrap_or(false),
+        timing,
+    }
+}
+
+/// Whether `preset` verifies on the command line when the run does not say: its
+/// `[verify] enabled`, else when it has a `[machine]` or `[polar]` table.
+///
+/// ```
+/// use ncpost::preset::Preset;
+/// let p = |n| Preset::builtin(n).unwrap();
+/// assert!(ncpost::pipeline::verify_by_default(&p("polar-printer")));
+/// assert!(!ncpost::pipeline::verify_by_default(&p("default")));
+/// ```
+pub fn by_default(preset: &Preset) -> bool {
     preset
         .verify
         .enabled
@@ -68,7 +91,7 @@ impl TapPoint {
 
 /// The verification of one run of `preset`: the tap and the verifier of the printed
 /// text, or `None` when the preset prints no G-code.
-fn plan(preset: &Preset) -> Option<(TapPoint, Verifier)> {
+fn plan(preset: &Preset, timing: Option<Timing>) -> Option<(TapPoint, Verifier)> {
     if preset.emit == Emit::Ir {
         return None;
     }
@@ -108,12 +131,23 @@ fn plan(preset: &Preset) -> Option<(TapPoint, Verifier)> {
         tap: Tap::new(kin),
         queue,
     };
-    Some((tap, Verifier::new(reader, checker, tol, polar.is_some())))
+    let verifier = Verifier::new(reader, checker, tol, polar.is_some());
+    // The readback times at constant velocity: under trapezoid timing its times are not
+    // the passes' to be judged by.
+    let timed = timing.unwrap_or(controller.timing) == Timing::ConstantVelocity;
+    Some((
+        tap,
+        if timed {
+            verifier
+        } else {
+            verifier.without_times()
+        },
+    ))
 }
 
-/// The tap and the teed writer of a run of `preset` into `out`, verifying when `on`.
-pub(super) fn start<W: Write>(on: bool, preset: &Preset, out: W) -> (Option<TapPoint>, Tee<W>) {
-    match on.then(|| plan(preset)).flatten() {
+/// The tap and the teed writer of a run of `preset` into `out`, verifying as `mode` says.
+pub(super) fn start<W: Write>(mode: &Mode, preset: &Preset, out: W) -> (Option<TapPoint>, Tee<W>) {
+    match mode.on.then(|| plan(preset, mode.timing)).flatten() {
         Some((tap, verifier)) => (Some(tap), Tee::new(out, Some(verifier))),
         None => (None, Tee::new(out, None)),
     }
