@@ -373,8 +373,9 @@ impl Pipeline {
         if let Some(d) = &mut self.stages.dump {
             let _ = d.flush();
         }
+        // The readback of a run that failed already would only repeat its errors.
         let (readback, mut out) = tee.finish();
-        if !aborted && !failed {
+        if !aborted && !failed && summary.errors == 0 {
             deliver(vec![readback], &mut summary);
         }
         if aborted {
