@@ -262,7 +262,8 @@ impl Checker {
         self.last = Some((m.to, end));
         // A programmed segment of no length is not printed: step over it.
         while let (Some(p), Some(t)) = (self.prev, self.target(0)) {
-            if self.hits(&end, &t) || !self.hits(&(p.tip, p.axis), &t) {
+            // (A full circle ends where it starts, but it is printed.)
+            if self.hits(&end, &t) || !self.hits(&(p.tip, p.axis), &t) || t.arc.is_some() {
                 break;
             }
             self.close(line);
@@ -296,11 +297,14 @@ impl Checker {
         if (complete && self.hits(&end, &target)) || (!complete && target.partial) {
             self.close(line);
         } else if complete && self.target(1).is_some_and(|next| self.hits(&end, &next)) {
-            // Vertex `j` was missed: how far its segment ended from it counts, and the
-            // printed path goes on with the next one.
-            self.figures
-                .tip
-                .note(distance(start.0, target.tip), line, target.line);
+            // Vertex `j` was missed: how far its segment ended from it counts (unless
+            // the controller did not know where it was), and the printed path goes on
+            // with the next one.
+            if !(target.partial || target.fresh || self.blind) {
+                self.figures
+                    .tip
+                    .note(distance(start.0, target.tip), line, target.line);
+            }
             self.close(line);
             self.close(line);
         }

@@ -136,9 +136,9 @@ pub struct Vertex {
     pub fresh: bool,
     /// Material the segment deposits (its E increase), slicer E units.
     pub material: f64,
-    /// An arc's centre and whether it runs in the XY plane (then the deviation is
-    /// radial).
-    pub arc: Option<[f64; 3]>,
+    /// An arc's centre and the index (0 = X, 1 = Y, 2 = Z) of its plane's normal: the
+    /// deviation is measured from its circle.
+    pub arc: Option<([f64; 3], usize)>,
     /// The target leaves X or Y unknown (before homing ends, say): a printed end whose
     /// place in the plane the controller does not know reaches it. (An unknown Z counts
     /// as 0 on both sides.)
@@ -205,7 +205,7 @@ impl Tap {
         };
         let rapid = m.kind == MotionKind::Rapid;
         let arc = match m.kind {
-            MotionKind::Arc(a) if a.plane == crate::ir::Plane::XY => Some(a.center.into()),
+            MotionKind::Arc(a) => Some((a.center.into(), a.plane.axes().2.index())),
             _ => None,
         };
         // A move from a position not known (after homing, the first one) has no
@@ -253,15 +253,17 @@ pub fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     norm(sub(a, b))
 }
 
-/// Distance of `p` from the programmed segment `a → b` (an XY arc about `arc`: the
-/// radial distance from its circle, with Z between the ends).
-pub fn off_segment(p: [f64; 3], a: [f64; 3], b: [f64; 3], arc: Option<[f64; 3]>) -> f64 {
-    if let Some(c) = arc {
-        let radius = (a[0] - c[0]).hypot(a[1] - c[1]);
-        let radial = (p[0] - c[0]).hypot(p[1] - c[1]) - radius;
-        let (lo, hi) = (a[2].min(b[2]), a[2].max(b[2]));
-        let dz = (lo - p[2]).max(p[2] - hi).max(0.0);
-        return radial.hypot(dz);
+/// Distance of `p` from the programmed segment `a → b` (an arc about centre `c` with
+/// its plane's normal on coordinate `n`: the distance from its circle in the plane, with
+/// the normal coordinate between the ends).
+pub fn off_segment(p: [f64; 3], a: [f64; 3], b: [f64; 3], arc: Option<([f64; 3], usize)>) -> f64 {
+    if let Some((c, n)) = arc {
+        let (u, v) = ((n + 1) % 3, (n + 2) % 3);
+        let radius = (a[u] - c[u]).hypot(a[v] - c[v]);
+        let radial = (p[u] - c[u]).hypot(p[v] - c[v]) - radius;
+        let (lo, hi) = (a[n].min(b[n]), a[n].max(b[n]));
+        let dn = (lo - p[n]).max(p[n] - hi).max(0.0);
+        return radial.hypot(dn);
     }
     let d = sub(b, a);
     let len2 = dot(d, d);
@@ -318,7 +320,7 @@ mod tests {
         assert!((off_segment([5.0, 0.3, 0.0], a, b, None) - 0.3).abs() < 1e-12);
         assert!((off_segment([12.0, 0.0, 0.0], a, b, None) - 2.0).abs() < 1e-12);
         // An arc of radius 10 about the origin.
-        let c = Some([0.0, 0.0, 0.0]);
+        let c = Some(([0.0, 0.0, 0.0], 2));
         let (s, e) = ([10.0, 0.0, 0.0], [0.0, 10.0, 0.0]);
         assert!(
             (off_segment([7.0, 7.0, 0.0], s, e, c) - (98f64.sqrt() - 10.0).abs()).abs() < 1e-12
