@@ -1,13 +1,12 @@
 //! The pipeline: frontend → passes → backend, block by block.
 
 mod relay;
+mod schedule;
 mod verify;
 
 pub use verify::by_default as verify_by_default;
 
 use std::io::{BufRead, Write};
-use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::back::{self, Backend};
 use crate::diag::{Diagnostic, Flood, Severity};
@@ -16,7 +15,7 @@ use crate::ir::{Block, dump};
 use crate::machine::RapidRule;
 use crate::passes::{self, Output, Pass};
 use crate::preset::{Emit, PassSpec, Preset};
-use relay::{Batch, Schedule, Task};
+use relay::{Ended, Reading};
 
 /// An input language.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -226,12 +225,16 @@ impl Builder {
         let mut passes = Vec::new();
         for spec in &self.preset.passes {
             let mut options = spec.options.clone();
-            // expand-subprograms lowers subprogram bodies with the frontend's options.
+            // expand-subprograms lowers subprogram bodies with the frontend's options; its
+            // own `input` table changes some of them.
             if spec.name == "expand-subprograms"
-                && !options.contains_key("input")
-                && let Ok(toml::Value::Table(t)) = toml::Value::try_from(&self.preset.gcode_input)
+                && let Ok(toml::Value::Table(mut input)) =
+                    toml::Value::try_from(&self.preset.gcode_input)
             {
-                options.insert("input".into(), toml::Value::Table(t));
+                if let Some(toml::Value::Table(own)) = options.get("input") {
+                    input.extend(own.clone());
+                }
+                options.insert("input".into(), toml::Value::Table(input));
             }
             passes.push(passes::build(&spec.name, &options, &context)?);
         }
@@ -313,8 +316,13 @@ impl Pipeline {
     ) -> Result<Summary, Diagnostic> {
         match source {
             Source::Gcode => {
-                let mut front = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
-                self.run_threaded(&mut front, output, on_diag)
+                let parser = front::gcode::Parser::new(input, self.preset.gcode_input.clone());
+                let (mut lines, lowering) = parser.into_halves();
+                self.run_relay(
+                    Reading::Lines(&mut lines, Box::new(lowering)),
+                    output,
+                    on_diag,
+                )
             }
             Source::Cl => {
                 let mut front = front::cl::Parser::new(input, self.preset.cl_input.clone());
@@ -332,6 +340,16 @@ impl Pipeline {
     pub fn run_threaded(
         &mut self,
         front: &mut dyn Frontend,
+        output: impl Write + Send,
+        on_diag: &mut dyn FnMut(Diagnostic),
+    ) -> Result<Summary, Diagnostic> {
+        self.run_relay(Reading::Blocks(front), output, on_diag)
+    }
+
+    /// [`Pipeline::run_threaded`] for what the reading thread reads.
+    fn run_relay(
+        &mut self,
+        reading: Reading<'_>,
         output: impl Write + Send,
         on_diag: &mut dyn FnMut(Diagnostic),
     ) -> Result<Summary, Diagnostic> {
@@ -358,17 +376,14 @@ impl Pipeline {
             }
             report(&mut rest, on_diag, summary, &mut flood);
         };
-        let (aborted, written, failed) = {
-            let relay = self.stages.relay(backend, tap);
-            relay.drive(front, progress, &mut summary, &mut deliver);
-            let aborted = relay.schedule.aborted();
-            let written = relay
-                .writer
-                .into_inner()
-                .unwrap_or_else(|p| p.into_inner())
-                .written;
-            (aborted, written, relay.failed.into_inner())
-        };
+        let Ended {
+            aborted,
+            written,
+            failed,
+        } = self
+            .stages
+            .relay(backend, tap)
+            .drive(reading, progress, &mut summary, &mut deliver);
         summary.blocks_out = written;
         if let Some(d) = &mut self.stages.dump {
             let _ = d.flush();
@@ -499,50 +514,6 @@ fn feed_on_rapids(preset: &Preset) -> bool {
 }
 
 impl Stages {
-    /// The passes and `backend` as the stages of one run, each stage with the IR dump of
-    /// its input when the dump point is there.
-    fn relay<'a>(
-        &'a mut self,
-        backend: Box<dyn Backend + Send + 'a>,
-        mut tap: Option<verify::TapPoint>,
-    ) -> Relay<'a> {
-        let dump_at = self.dump_at;
-        let mut dump = self.dump.as_mut();
-        let count = self.passes.len();
-        let mut dump_before = |i: usize| {
-            if dump_at == Some(i) {
-                dump.take()
-            } else {
-                None
-            }
-        };
-        let passes: Vec<Mutex<PassStage<'_>>> = self
-            .passes
-            .iter_mut()
-            .enumerate()
-            .map(|(i, pass)| {
-                let dump = dump_before(i);
-                let tap = tap.take_if(|t| t.at == i);
-                Mutex::new(PassStage { pass, dump, tap })
-            })
-            .collect();
-        let writer = Mutex::new(WriterStage {
-            backend,
-            dump: dump_before(count),
-            written: 0,
-            tap,
-        });
-        Relay {
-            max_repeats: self.max_repeats,
-            schedule: Schedule::new(count + 1),
-            passes,
-            writer,
-            failed: AtomicBool::new(false),
-            reports: Mutex::new(Vec::new()),
-            spare: Mutex::new(Vec::new()),
-        }
-    }
-
     /// All passes as one part.
     fn whole(&mut self) -> Part<'_> {
         Part {
@@ -551,224 +522,6 @@ impl Stages {
             dump_at: self.dump_at,
             dump: self.dump.as_mut(),
         }
-    }
-}
-
-/// Blocks the frontend reads per batch.
-const BATCH: usize = 1024;
-
-/// Emptied batch buffers kept for reuse (a buffer grows to what the passes make of a
-/// batch once, not on every batch).
-const SPARE_BATCHES: usize = 4;
-
-/// A pass as a stage of a [`Relay`], with the IR dump of its input when the dump point
-/// is there.
-struct PassStage<'a> {
-    pass: &'a mut Box<dyn Pass>,
-    dump: Option<&'a mut Box<dyn Write + Send>>,
-    /// The programmed path of `--verify` is this stage's input.
-    tap: Option<verify::TapPoint>,
-}
-
-/// The backend as the last stage of a [`Relay`].
-struct WriterStage<'a> {
-    backend: Box<dyn Backend + Send + 'a>,
-    dump: Option<&'a mut Box<dyn Write + Send>>,
-    /// Blocks handed to the backend.
-    written: u64,
-    /// The programmed path of `--verify` is the backend's input (no machine pass).
-    tap: Option<verify::TapPoint>,
-}
-
-/// What the two threads of [`Pipeline::run_threaded`] share. The schedule gives a stage
-/// to one thread at a time, so its lock is never waited for.
-struct Relay<'a> {
-    /// As [`Stages::max_repeats`].
-    max_repeats: u64,
-    schedule: Schedule,
-    passes: Vec<Mutex<PassStage<'a>>>,
-    writer: Mutex<WriterStage<'a>>,
-    /// The output cannot be written: reading stops, passes skip their work.
-    failed: AtomicBool,
-    /// Each written batch's diagnostics, in input order, for the reading thread.
-    reports: Mutex<Vec<Vec<Diagnostic>>>,
-    spare: Mutex<Vec<Vec<Block>>>,
-}
-
-impl Relay<'_> {
-    /// Runs the whole input through the stages on this thread and one more: this one
-    /// reads the frontend whenever the schedule asks for input, both run whichever stage
-    /// is due. `deliver` gets each written batch's diagnostics, in input order.
-    fn drive(
-        &self,
-        front: &mut dyn Frontend,
-        progress: &mut Option<Box<dyn FnMut(u64)>>,
-        summary: &mut Summary,
-        deliver: &mut dyn FnMut(Vec<Vec<Diagnostic>>, &mut Summary),
-    ) {
-        std::thread::scope(|scope| {
-            let worker = scope.spawn(|| {
-                let mut next = Vec::with_capacity(BATCH);
-                while let Some(task) = self.schedule.next(false) {
-                    if let Task::Stage(k, batch) = task {
-                        self.stage_caught(k, batch, &mut next);
-                    }
-                }
-            });
-            let mut next = Vec::with_capacity(BATCH);
-            let mut seq = 0u64;
-            let mut counter = 0u64;
-            while let Some(task) = self.schedule.next(true) {
-                match task {
-                    Task::Read if self.failed.load(Ordering::Acquire) => {
-                        // Nothing more can be written: stop reading.
-                        self.schedule.read_done(None);
-                    }
-                    Task::Read => {
-                        let mut blocks = self.spare_batch();
-                        let mut diags = Vec::new();
-                        front.next_batch(&mut blocks, BATCH, &mut diags);
-                        let end = blocks.is_empty();
-                        summary.blocks_in += blocks.len() as u64;
-                        counter += blocks.len() as u64;
-                        if counter >= 1 << 14 {
-                            counter = 0;
-                            if let Some(p) = progress.as_mut() {
-                                p(front.bytes_read());
-                            }
-                        }
-                        let batch = Batch {
-                            seq,
-                            blocks,
-                            diags,
-                            end,
-                        };
-                        self.schedule.read_done(Some(batch));
-                        seq += 1;
-                    }
-                    Task::Stage(k, batch) => self.stage_caught(k, batch, &mut next),
-                }
-                deliver(self.take_reports(), summary);
-            }
-            if worker.join().is_err() {
-                self.schedule.abort();
-            }
-        });
-        deliver(self.take_reports(), summary);
-    }
-
-    /// Runs stage `k` (a pass, or after the last pass the backend) on `batch` and hands
-    /// the batch on.
-    fn stage(&self, k: usize, mut batch: Batch, next: &mut Vec<Block>) {
-        match self.passes.get(k) {
-            Some(stage) => {
-                let mut stage = stage.lock().unwrap_or_else(|p| p.into_inner());
-                self.pass_stage(&mut stage, &mut batch, next);
-            }
-            None => {
-                let mut w = self.writer.lock().unwrap_or_else(|p| p.into_inner());
-                self.write(&mut w, &mut batch);
-            }
-        }
-        if let Some(mut done) = self.schedule.stage_done(k, batch) {
-            done.blocks.clear();
-            // A pass that cuts moves into many pieces (polar-ik, densify) grows a batch
-            // far beyond what the frontend reads; a kept buffer goes back to that size so
-            // that memory stays bounded by the batch size, not by the longest expansion.
-            done.blocks.shrink_to(BATCH);
-            if let Ok(mut spare) = self.spare.lock()
-                && spare.len() < SPARE_BATCHES
-            {
-                spare.push(done.blocks);
-            }
-        }
-    }
-
-    fn pass_stage(&self, stage: &mut PassStage<'_>, batch: &mut Batch, next: &mut Vec<Block>) {
-        if let Some(d) = stage.dump.as_mut() {
-            dump_blocks(d, &batch.blocks);
-        }
-        if let Some(t) = stage.tap.as_mut() {
-            t.record(&batch.blocks);
-        }
-        if self.failed.load(Ordering::Acquire) {
-            batch.blocks.clear();
-            return;
-        }
-        run_pass(
-            stage.pass,
-            &mut batch.blocks,
-            next,
-            &mut batch.diags,
-            self.max_repeats,
-        );
-        // The scratch buffer keeps the batch's size, as the spare buffers do.
-        next.shrink_to(BATCH);
-        if batch.end {
-            // What the pass still holds goes on after this batch's blocks.
-            finish_pass(
-                stage.pass,
-                &mut batch.blocks,
-                &mut batch.diags,
-                self.max_repeats,
-            );
-        }
-    }
-
-    fn write(&self, w: &mut WriterStage<'_>, batch: &mut Batch) {
-        if let Some(d) = w.dump.as_mut() {
-            dump_blocks(d, &batch.blocks);
-        }
-        if let Some(t) = w.tap.as_mut() {
-            t.record(&batch.blocks);
-        }
-        // Set by the first write error (a full disk, a closed pipe): nothing more is written.
-        if !self.failed.load(Ordering::Acquire) {
-            w.written += batch.blocks.len() as u64;
-            if w.backend
-                .write_batch(&batch.blocks, &mut batch.diags)
-                .is_err()
-            {
-                self.failed.store(true, Ordering::Release);
-                self.schedule.stop_reading();
-            } else if batch.end
-                && let Err(d) = w.backend.finish()
-            {
-                batch.diags.push(d);
-            }
-        }
-        // Still the backend's turn: the reports stay in input order.
-        if !batch.diags.is_empty()
-            && let Ok(mut r) = self.reports.lock()
-        {
-            r.push(std::mem::take(&mut batch.diags));
-        }
-    }
-
-    /// [`Relay::stage`], stopping the whole run if a pass or the backend panics (the
-    /// other thread would otherwise wait for this batch forever).
-    fn stage_caught(&self, k: usize, batch: Batch, next: &mut Vec<Block>) {
-        let ran =
-            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.stage(k, batch, next)));
-        if ran.is_err() {
-            self.schedule.abort();
-        }
-    }
-
-    fn take_reports(&self) -> Vec<Vec<Diagnostic>> {
-        self.reports
-            .lock()
-            .map(|mut r| std::mem::take(&mut *r))
-            .unwrap_or_default()
-    }
-
-    /// An empty buffer for the next batch.
-    fn spare_batch(&self) -> Vec<Block> {
-        self.spare
-            .lock()
-            .ok()
-            .and_then(|mut s| s.pop())
-            .unwrap_or_else(|| Vec::with_capacity(BATCH))
     }
 }
 
@@ -914,22 +667,25 @@ pub fn compile_str(src: &str, preset: &Preset) -> Result<String, Vec<Diagnostic>
     }
     Ok(String::from_utf8_lossy(&out).into_owned())
 }
-/// The G-code lowerer for `expand-subprograms`, made for frontend options `input`: the
-/// [`passes::Context::relower`] of every pipeline (passes do not depend on the
-/// frontends; this adapter is where they meet).
+/// The G-code lowerer for `expand-subprograms`, made for the frontend options in the
+/// table `input`: the [`passes::Context::relower`] of every pipeline (passes do not
+/// depend on the frontends; this adapter is where they meet).
 ///
 /// ```
-/// use ncpost::passes::expand_subprograms::lower::Input;
-/// let lowering = ncpost::pipeline::gcode_relower(&Input::default()).unwrap();
+/// let lowering = ncpost::pipeline::gcode_relower(&toml::Table::new()).unwrap();
 /// assert!(lowering.oword_call("o100 call").is_some());
+/// let bad: toml::Table = toml::from_str("dwell_p_seconds = true").unwrap();
+/// assert!(ncpost::pipeline::gcode_relower(&bad).is_err());
 /// ```
 pub fn gcode_relower(
-    input: &passes::expand_subprograms::lower::Input,
+    input: &toml::Table,
 ) -> Result<Box<dyn passes::expand_subprograms::lower::Lowering>, Diagnostic> {
-    let options: front::gcode::Options = toml::Value::try_from(input)
-        .map_err(|e| Diagnostic::settings(e.to_string()))?
-        .try_into()
-        .map_err(|e: toml::de::Error| Diagnostic::settings(e.message()))?;
+    let options: front::gcode::Options =
+        toml::Value::Table(input.clone())
+            .try_into()
+            .map_err(|e: toml::de::Error| {
+                Diagnostic::settings(format!("expand-subprograms input: {}", e.message()))
+            })?;
     Ok(Box::new(GcodeLowering(options)))
 }
 

@@ -19,8 +19,9 @@ use ncpost::machine::Machine;
 use ncpost::pipeline::{Pipeline, Source};
 use ncpost::preset::Preset;
 
-const TIP_TOL: f64 = 0.01;
-const AXIS_TOL_DEG: f64 = 0.05;
+#[path = "common/geometry.rs"]
+mod geometry;
+use geometry::{AXIS_TOL_DEG, TIP_TOL, angle_to_arc, distance_to_segment};
 
 /// One CL point: tip, unit tool axis, programmed feed (mm/min).
 #[derive(Debug, Clone, Copy)]
@@ -163,39 +164,6 @@ type J5 = [f64; 5];
 fn fk(m: &Machine, j: &J5) -> (Point3<f64>, Unit<Vector3<f64>>) {
     let p = m.forward(&[j[0], j[1], j[2]], [j[3], j[4]]);
     (p.tip, p.axis)
-}
-
-fn distance_to_segment(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
-    let ab = b - a;
-    let len2 = ab.norm_squared();
-    let s = if len2 > 0.0 {
-        ((p - a).dot(&ab) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + ab * s)).norm()
-}
-
-/// Angle (deg) from `v` to the great-circle arc from `a` to `b`.
-fn angle_to_arc(v: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
-    let n = a.cross(b);
-    let to_end = |w: &Vector3<f64>| v.angle(w).to_degrees();
-    let ends = to_end(a).min(to_end(b));
-    if n.norm() < 1e-12 {
-        return ends;
-    }
-    let n = n.normalize();
-    // The projection onto the arc's plane is on the arc when it lies between a and b.
-    let proj = v - n * n.dot(v);
-    if proj.norm() < 1e-12 {
-        return ends;
-    }
-    let inside = a.cross(&proj).dot(&n) >= -1e-12 && proj.cross(b).dot(&n) >= -1e-12;
-    if inside {
-        v.angle(&proj).to_degrees()
-    } else {
-        ends
-    }
 }
 
 struct Run {

@@ -4,9 +4,11 @@
 
 use ncpost::pipeline::Pipeline;
 
-/// A cut tilting through Z towards -X past B -35: the continuing solution leaves B's
-/// range, the other one is 180 degrees of C away.
-const FLIP: &str = "UNITS/MM\nMULTAX/ON\nRAPID\nGOTO/0,0,50,0.5,0,0.8660254\n\
+/// A cut tilting from B 40 towards +X through Z towards -X past B -35: the continuing
+/// solution leaves B's range, the other one is 180 degrees of C away, and no branch runs
+/// the whole cut (the twin of the start, B -40, is out of range too), so the look-ahead
+/// cannot avoid the flip.
+const FLIP: &str = "UNITS/MM\nMULTAX/ON\nRAPID\nGOTO/0,0,50,0.6427876,0,0.7660444\n\
 FEDRAT/MMPM,500\nGOTO/5,0,50,0.1736482,0,0.9848078\nGOTO/10,0,50,-0.1736482,0,0.9848078\n\
 GOTO/15,0,50,-0.6427876,0,0.7660444\nGOTO/20,0,50,-0.6427876,0,0.7660444\n";
 

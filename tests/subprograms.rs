@@ -508,12 +508,24 @@ proptest! {
     }
 }
 
-/// The pass's `[input]` table has the G-code frontend's fields and defaults, so the
-/// bodies of subprograms are lowered as the frontend lowers the main program.
+/// Bodies are lowered with the preset's `[gcode_input]`, and the pass's `input` table
+/// changes single fields of it: `G4 P500` in a body is half a second under the default
+/// (milliseconds) and 500 seconds when the pass's input says P counts seconds, and an
+/// unknown field is a settings error.
 #[test]
-fn pass_input_is_the_frontend_options() {
-    let ours = toml::to_string(&ncpost::passes::expand_subprograms::lower::Input::default())
-        .expect("serializes");
-    let front = toml::to_string(&ncpost::front::gcode::Options::default()).expect("serializes");
-    assert_eq!(ours, front);
+fn pass_input_changes_the_frontend_options() {
+    let program = "M98 P1000\nM30\nO1000\nG4 P500\nM99\n";
+    let dwell = |input: &str| -> Result<String, Vec<ncpost::diag::Diagnostic>> {
+        let text = format!(
+            "emit = \"ir\"\n[[passes]]\nname = \"expand-subprograms\"\n[passes.options.input]\n{input}\n"
+        );
+        let preset = ncpost::preset::Preset::from_toml(&text).expect("preset");
+        ncpost::pipeline::compile_str(program, &preset)
+    };
+    let ms = dwell("").expect("compiles");
+    assert!(ms.contains("dwell 0.5000s"), "{ms}");
+    let s = dwell("dwell_p_milliseconds = false").expect("compiles");
+    assert!(s.contains("dwell 500.0000s"), "{s}");
+    let bad = dwell("dwell_p_seconds = true").expect_err("unknown field");
+    assert!(bad[0].message.contains("dwell_p_seconds"), "{:?}", bad[0]);
 }

@@ -107,7 +107,8 @@ struct Modes {
     absolute: Option<bool>,
     plane: Option<Plane>,
     feed_mode: Option<FeedMode>,
-    feed: Option<i64>,
+    /// The modal F as the controller read it.
+    feed: Option<f64>,
     motion: Option<&'static str>,
     e_relative: Option<bool>,
 }

@@ -6,7 +6,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{
     AXIS_COUNT, Arc, Axis, AxisSet, Block, FeedMode, Joints, Motion, MotionKind, Plane, Target,
 };
-use crate::num::print::to_units;
+use crate::num::print::{from_units, to_units};
 
 /// The axis words of a move: `units[i]` for the axes in `named`.
 struct Words {
@@ -239,13 +239,15 @@ impl<W: std::io::Write> Emitter<W> {
         if let Some(rate) = motion.feed.rate.filter(|_| {
             !rapid || (self.fmt.feed_on_rapids && motion.feed.mode == FeedMode::PerMinute)
         }) {
-            let fu = to_units(rate, self.fmt.decimals.feed)
-                .ok_or_else(|| too_large('F', rate, block))?;
+            // A slow F gets the decimals that keep it within the feed resolution.
+            let places = self.fmt.decimals.feed_decimals(rate);
+            let fu = to_units(rate, places).ok_or_else(|| too_large('F', rate, block))?;
             let must = motion.feed.mode == FeedMode::InverseTime
                 && !matches!(motion.kind, MotionKind::Rapid);
-            if self.modes.feed != Some(fu) || must {
-                self.word_units('F', fu, self.fmt.decimals.feed);
-                self.modes.feed = Some(fu);
+            let value = from_units(fu, places);
+            if self.modes.feed != Some(value) || must {
+                self.word_units('F', fu, places);
+                self.modes.feed = Some(value);
             }
         }
         Ok(())

@@ -31,7 +31,7 @@ mod inverse;
 pub mod polar;
 
 pub use chain::{PathEnd, ToolPose, Turns};
-pub use flavour::{Flavour, RapidRule};
+pub use flavour::{ArcTolerance, Code, DwellUnit, Flavour, ProgramEnd, RRF_MIN_SPEED, RapidRule};
 pub use inverse::{Orientation, Solutions};
 
 use serde::{Deserialize, Serialize};
@@ -279,8 +279,10 @@ impl std::str::FromStr for Timing {
 pub struct Controller {
     /// How F is interpreted.
     pub feed_rule: FeedRule,
-    /// The controller never moves slower than this, mm/min (RepRapFirmware: 0.5 mm/s
-    /// unless `M203 I` lowers it).
+    /// The controller never moves slower than this, mm/min: a slower F is raised to it,
+    /// so the block runs faster than programmed. The default is RepRapFirmware's 30 mm/min
+    /// ([`RRF_MIN_SPEED`], `M203 I` lowers it); what each firmware does is
+    /// [`Flavour::min_speed`].
     pub min_speed: f64,
     /// Highest speed per axis, mm/min or deg/min (`M203`).
     pub max_feed: PerAxis,
@@ -306,13 +308,26 @@ impl Controller {
     pub fn rapid_rule(&self) -> RapidRule {
         self.flavour.map_or(RapidRule::Fixed, Flavour::rapid_rule)
     }
+
+    /// Where this controller's minimum speed is set, for a message that asks to lower it
+    /// (RepRapFirmware's `M203 I` without a flavour).
+    ///
+    /// ```
+    /// use ncpost::machine::{Controller, Flavour};
+    /// let grbl = Controller { flavour: Some(Flavour::Grbl), ..Controller::default() };
+    /// assert!(grbl.min_speed_setting().contains("MINIMUM_FEED_RATE"));
+    /// assert!(Controller::default().min_speed_setting().contains("M203 I"));
+    /// ```
+    pub fn min_speed_setting(&self) -> &'static str {
+        self.flavour.unwrap_or(Flavour::RrfCnc).min_speed_setting()
+    }
 }
 
 impl Default for Controller {
     fn default() -> Self {
         Controller {
             feed_rule: FeedRule::Nist,
-            min_speed: 30.0,
+            min_speed: RRF_MIN_SPEED,
             max_feed: PerAxis::default(),
             acceleration: PerAxis::default(),
             drivers: Drivers::default(),

@@ -92,6 +92,91 @@ pub fn tokens(line: &str) -> impl Iterator<Item = Spanned<'_>> {
     })
 }
 
+/// A token's kind without its text. A line's tokens kept as kinds and byte ranges need no
+/// borrow of the line, so the G-code frontend's reading half can hand a batch of lexed
+/// lines to its lowering half on another thread, which rebuilds each [`Tok`] with
+/// [`Kind::with_text`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// [`Tok::Word`].
+    Word,
+    /// [`Tok::Letter`].
+    Letter,
+    /// [`Tok::Ident`].
+    Ident,
+    /// [`Tok::Number`].
+    Number,
+    /// [`Tok::Comment`].
+    Comment,
+    /// [`Tok::OpenComment`].
+    OpenComment,
+    /// [`Tok::LineComment`].
+    LineComment,
+    /// [`Tok::Str`].
+    Str,
+    /// [`Tok::Checksum`].
+    Checksum,
+    /// [`Tok::Slash`].
+    Slash,
+    /// [`Tok::Percent`].
+    Percent,
+    /// [`Tok::OpenParen`].
+    OpenParen,
+    /// [`Tok::Other`].
+    Other,
+}
+
+impl Tok<'_> {
+    /// The token's kind.
+    pub fn kind(&self) -> Kind {
+        match self {
+            Tok::Word(_) => Kind::Word,
+            Tok::Letter(_) => Kind::Letter,
+            Tok::Ident(_) => Kind::Ident,
+            Tok::Number(_) => Kind::Number,
+            Tok::Comment(_) => Kind::Comment,
+            Tok::OpenComment(_) => Kind::OpenComment,
+            Tok::LineComment(_) => Kind::LineComment,
+            Tok::Str(_) => Kind::Str,
+            Tok::Checksum(_) => Kind::Checksum,
+            Tok::Slash(_) => Kind::Slash,
+            Tok::Percent => Kind::Percent,
+            Tok::OpenParen => Kind::OpenParen,
+            Tok::Other(_) => Kind::Other,
+        }
+    }
+}
+
+impl Kind {
+    /// The token of this kind whose text is `text`: the line's bytes over the token's
+    /// range, as [`tokens`] gives every token its own range's text.
+    ///
+    /// ```
+    /// use ncpost::num::lexer::tokens;
+    /// let line = "G1 X-.5 (cut) ; end";
+    /// for (start, tok, end) in tokens(line) {
+    ///     assert_eq!(tok.kind().with_text(&line[start..end]), tok);
+    /// }
+    /// ```
+    pub fn with_text(self, text: &str) -> Tok<'_> {
+        match self {
+            Kind::Word => Tok::Word(text),
+            Kind::Letter => Tok::Letter(text),
+            Kind::Ident => Tok::Ident(text),
+            Kind::Number => Tok::Number(text),
+            Kind::Comment => Tok::Comment(text),
+            Kind::OpenComment => Tok::OpenComment(text),
+            Kind::LineComment => Tok::LineComment(text),
+            Kind::Str => Tok::Str(text),
+            Kind::Checksum => Tok::Checksum(text),
+            Kind::Slash => Tok::Slash(text),
+            Kind::Percent => Tok::Percent,
+            Kind::OpenParen => Tok::OpenParen,
+            Kind::Other => Tok::Other(text),
+        }
+    }
+}
+
 /// Whether `line` has a word (letter with a number) for `letter`, either case.
 ///
 /// ```
@@ -236,5 +321,16 @@ mod tests {
                 Tok::Number("2")
             ]
         );
+    }
+
+    proptest::proptest! {
+        /// A token rebuilt from its kind and its range's text is the token: what the
+        /// G-code frontend's two halves rely on to pass lines between threads.
+        #[test]
+        fn kind_and_range_rebuild_every_token(line in "[ -~]{0,40}") {
+            for (start, tok, end) in tokens(&line) {
+                proptest::prop_assert_eq!(tok.kind().with_text(&line[start..end]), tok);
+            }
+        }
     }
 }

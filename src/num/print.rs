@@ -32,6 +32,47 @@ impl Default for Decimals {
     }
 }
 
+/// Largest relative error of a printed F: a block's time on the controller is its
+/// distance over the F it reads, so this is the share of a block's time that printing F
+/// may cost (0.1 %, a tenth of the 1 % a block's time must hold).
+pub const FEED_RESOLUTION: f64 = 1e-3;
+
+/// Most decimals an F gets: a 32-bit float firmware (RepRapFirmware, Grbl, Marlin) keeps
+/// about 7 significant digits, so `F0.012345` is still read as printed.
+pub const FEED_MAX_DECIMALS: u8 = 6;
+
+impl Decimals {
+    /// The decimals F `value` is printed with: at least `feed`, and more (up to
+    /// [`FEED_MAX_DECIMALS`]) while the printed value is more than [`FEED_RESOLUTION`]
+    /// off. A slow F (a rotary move's XYZ speed, a plunge) keeps its significant digits,
+    /// where a fixed 2 decimals print 0.0628 as `F0.06`, 4.5 % fast.
+    ///
+    /// ```
+    /// use ncpost::num::print::Decimals;
+    /// let d = Decimals { feed: 2, ..Decimals::default() };
+    /// assert_eq!(d.feed_decimals(1200.0), 2);
+    /// assert_eq!(d.feed_decimals(16.0812), 2);
+    /// assert_eq!(d.feed_decimals(0.0628), 4);
+    /// assert_eq!(d.printed_feed(0.06283), Some(0.0628));
+    /// ```
+    pub fn feed_decimals(&self, value: f64) -> u8 {
+        let mut places = self.feed;
+        while places < FEED_MAX_DECIMALS {
+            match printed(value, places) {
+                Some(p) if (p - value).abs() > FEED_RESOLUTION * value.abs() => places += 1,
+                _ => break,
+            }
+        }
+        places
+    }
+
+    /// F `value` as the controller reads it: printed at [`Decimals::feed_decimals`];
+    /// `None` when it does not fit.
+    pub fn printed_feed(&self, value: f64) -> Option<f64> {
+        printed(value, self.feed_decimals(value))
+    }
+}
+
 /// Keeps `value` and its printed form as the `seen` pair that the next rounding of the
 /// same value reuses (see `Decimals::printed_joints`).
 ///

@@ -12,16 +12,32 @@
 //! emitted F is the rule's distance over `t`. Everything is computed from the numbers the
 //! controller will read: each joint value rounded as the backend prints it (with the G92
 //! offsets in force), both for `L` (forward kinematics of the rounded joints) and for the
-//! controller's distance. The IR joint values themselves are left exact. A printed rotary
-//! value is a whole number of units, so the sines and cosines of the kinematics come from
-//! the tables of [`RotaryGrid`] rather than libm (which stays for values off the grid).
+//! controller's distance. The IR joint values themselves are left exact (but for X, Y, Z
+//! held below). A printed rotary value is a whole number of units, so the sines and
+//! cosines of the kinematics come from the tables of [`RotaryGrid`] rather than libm
+//! (which stays for values off the grid).
 //!
 //! A move that turns the tool about a fixed tip has no tip speed; it turns at
 //! `reorient_feed` degrees per minute (over the two rotary deltas) instead.
 //!
+//! **X, Y, Z that move only by print rounding.** Where a rotary turns and X, Y, Z stay
+//! within `hold_units` print units (default 2) of where they were last printed (a C-table
+//! circle, a hemisphere's ring: the tip stands still in the machine frame, and CL data
+//! rounded to 4 decimals or the print rounding make it jitter by 0.0001 mm), X, Y, Z are
+//! held where they were printed: under the NIST rule F then applies to the rotary
+//! distance. Printed as they come, a 0.0001 mm step would carry the whole time, with an F
+//! such as 0.0628 mm/min far below any controller's minimum speed, so the controller would
+//! run the block many times too fast. Holding moves the tip by at most `hold_units` print
+//! units per axis.
+//!
+//! F is printed with the decimals that keep it within 0.1 % (the backend's
+//! `decimals.feed` at least, more for a slow F: `num::print::Decimals::feed_decimals`).
+//!
 //! Warnings (each shown once with its place, then counted at the end): `feed::min-speed`
 //! when the controller's speed for the block (in G93: the NIST distance over the block's
-//! time) is below `controller.min_speed`, so the block would run faster than programmed; `feed::max-speed` when an axis would exceed
+//! time) is still below `controller.min_speed`, so the block runs faster than programmed
+//! (the message says how much; the help names where the firmware's minimum is set,
+//! `machine::Flavour::min_speed_setting`); `feed::max-speed` when an axis would exceed
 //! its `max_feed`, so the controller slows the block down; `feed::precision` when the
 //! printed F is more than 0.1 % off. A cutting move without a feed rate is the error
 //! `feed::missing`. Rapids, arcs, G53 moves, feeds not in mm/min and moves from or to a
@@ -38,8 +54,9 @@ use crate::ir::{
 };
 use crate::machine::grid::RotaryGrid;
 use crate::machine::{FeedRule, Machine, Turns};
-use crate::num::print::Decimals;
-use crate::num::print::{from_units, to_units};
+use crate::num::print::{
+    Decimals, FEED_MAX_DECIMALS, FEED_RESOLUTION, from_units, printed, to_units,
+};
 
 /// Options of `feed`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -51,6 +68,9 @@ pub struct Options {
     pub mode: Option<FeedRule>,
     /// Rotary speed of a pure reorientation (the tip stands still), degrees per minute.
     pub reorient_feed: f64,
+    /// X, Y, Z within this many print units of where they were last printed are held
+    /// there while a rotary turns (0: never), so that F applies to the rotary distance.
+    pub hold_units: u32,
 }
 
 impl Default for Options {
@@ -58,6 +78,7 @@ impl Default for Options {
         Options {
             mode: None,
             reorient_feed: 1000.0,
+            hold_units: 2,
         }
     }
 }
@@ -79,9 +100,6 @@ pub const INFO: PassInfo = PassInfo {
 
 /// Below this tip travel (mm) a move is a pure reorientation.
 const ZERO_TIP: f64 = 1e-6;
-
-/// Largest relative error of a printed F.
-const FEED_PRECISION: f64 = 1e-3;
 
 /// A warning shown once with its place and counted for the end of the run.
 #[derive(Debug, Default)]
@@ -113,6 +131,7 @@ pub struct Feed {
     machine: Machine,
     rule: FeedRule,
     reorient_feed: f64,
+    hold_units: u32,
     decimals: Option<Decimals>,
     axes: [Axis; 5],
     /// `axes` as a set, to check that a position knows all five at once.
@@ -131,8 +150,6 @@ pub struct Feed {
     /// that a move at exactly the limit does not); both infinite for an axis without one,
     /// which no speed exceeds.
     max_feed: [(f64, f64); 5],
-    /// `10^decimals.feed`: a printed F is a whole number of `1 / feed_scale`.
-    feed_scale: f64,
     /// Where the next move starts.
     prev: Joints,
     /// `prev` as read, when already computed under the offsets in force.
@@ -172,10 +189,10 @@ impl Feed {
                 .and_then(|d| RotaryGrid::new(&machine, d.rotary)),
             machine,
             reorient_feed: options.reorient_feed,
+            hold_units: options.hold_units,
             decimals: context.decimals,
             places: context.decimals.map(|d| axes.map(|a| d.axis(a))),
             max_feed,
-            feed_scale: context.decimals.map_or(1.0, |d| 10f64.powi(d.feed as i32)),
             axes,
             five: axes.into_iter().collect(),
             index: axes.map(Axis::index),
@@ -317,10 +334,11 @@ impl Feed {
             }
             self.max_speed.count += over;
         }
-        if let Some(d) = self.decimals
-            && let Some(units) = to_units(f, d.feed)
-        {
-            f = self.check_precision(span, f, units, d.feed, diags);
+        if let Some(d) = self.decimals {
+            let places = d.feed_decimals(f);
+            if let Some(units) = to_units(f, places) {
+                f = self.check_precision(span, f, units, places, diags);
+            }
         }
         self.last_rate = Some(f);
         (mode, f)
@@ -341,14 +359,9 @@ impl Feed {
         places: u8,
         diags: &mut Vec<Diagnostic>,
     ) -> f64 {
-        let scale = self.feed_scale;
-        let printed = if units == 0 {
-            1.0 / scale
-        } else {
-            units as f64 / scale
-        };
+        let printed = from_units(units.max(1), places);
         let error = (printed - f).abs() / f;
-        if error > FEED_PRECISION {
+        if error > FEED_RESOLUTION {
             let wanted = f;
             self.precision.hit(diags, || {
                 Diagnostic::warning(
@@ -359,7 +372,7 @@ impl Feed {
                     ),
                 )
                 .at_span(span)
-                .with_help("print F with more decimals (the backend's `decimals.feed`)")
+                .with_help(format!("this F is too slow for the most decimals an F is printed with ({FEED_MAX_DECIMALS}): raise the programmed feed, or use inverse time (`mode = \"inverse-time\"`) where the controller has G93"))
             });
         }
         if units == 0 { printed } else { f }
@@ -368,15 +381,17 @@ impl Feed {
     /// `feed::min-speed` for a move at `speed`.
     fn warn_min_speed(&mut self, span: Span, speed: f64, diags: &mut Vec<Diagnostic>) {
         let min = self.machine.controller.min_speed;
+        let setting = self.machine.controller.min_speed_setting();
         self.min_speed.hit(diags, || {
             Diagnostic::warning(
                 "feed::min-speed",
                 format!(
-                    "this move needs {speed:.3}/min, below the controller's minimum speed of {min}: it will run faster than programmed"
+                    "this move needs {speed:.4}/min, below the controller's minimum speed of {min}: the controller runs it at {min}, in {:.1} % of the programmed time",
+                    100.0 * speed / min
                 ),
             )
             .at_span(span)
-            .with_help("lower the controller's minimum speed (RepRapFirmware: M203 I) and `controller.min_speed`, or raise the programmed feed")
+            .with_help(format!("lower the controller's minimum speed ({setting}) and `controller.min_speed` to {:.4} or less, or raise the programmed feed", speed))
         });
     }
 
@@ -462,7 +477,7 @@ impl Feed {
         let mut next_read = None;
         match &mut block.kind {
             BlockKind::Motion(m) => {
-                let Target::Joints(end) = &m.target else {
+                let Target::Joints(end) = &mut m.target else {
                     // A pose this late: the axes it writes are not known.
                     self.follow(|t| t.motion(m));
                     return None;
@@ -474,9 +489,14 @@ impl Feed {
                     match m.feed.rate {
                         Some(rate) if rate.is_finite() && rate > 0.0 => {
                             let a = prev_read.or_else(|| self.read(&self.prev));
+                            // The exact end tells a reorientation from a short move.
+                            let exact = *end;
+                            if let Some(a) = &a {
+                                self.hold(a, end);
+                            }
                             let b = self.read(end);
                             if let (Some(a), Some(b)) = (a, b) {
-                                let (mode, f) = self.feed_for(span, (&a, &b), end, rate, diags);
+                                let (mode, f) = self.feed_for(span, (&a, &b), &exact, rate, diags);
                                 m.feed.mode = mode;
                                 m.feed.rate = Some(f);
                             }
@@ -522,6 +542,32 @@ impl Feed {
         let mut tracker = Tracker::at(self.prev);
         change(&mut tracker);
         self.prev = *tracker.pos();
+    }
+
+    /// Holds X, Y and Z of `end` where `a` (the start as printed) has them, when a rotary
+    /// turns and each lies within `hold_units` print units of there: they would move only
+    /// by rounding, and the NIST rule would give that step the whole time.
+    fn hold(&self, a: &Read, end: &mut Joints) {
+        let Some(places) = self.places.filter(|_| self.hold_units > 0) else {
+            return;
+        };
+        if end.known.intersection(self.five) != self.five {
+            return;
+        }
+        let moved = |k: usize, v: f64| printed(v + self.offsets[self.index[k]], places[k]);
+        let turns = (3..5).any(|k| moved(k, end.values[self.index[k]]) != Some(a.printed[k]));
+        let near = (0..3).all(|k| {
+            let v = end.values[self.index[k]] + self.offsets[self.index[k]];
+            (v - a.printed[k]).abs() <= f64::from(self.hold_units) * from_units(1, places[k])
+        });
+        if turns && near {
+            for k in 0..3 {
+                let i = self.index[k];
+                if moved(k, end.values[i]) != Some(a.printed[k]) {
+                    end.values[i] = a.printed[k] - self.offsets[i];
+                }
+            }
+        }
     }
 
     /// `feed::missing` for a cutting move without a feed rate.
@@ -666,6 +712,30 @@ mod tests {
             let bound = 1e-12 + 600.0 * 3.0 * 2.3e-16 * radians;
             check_read(&mut f, v, [0.0; 5], true, bound)?;
         }
+    }
+
+    /// X, Y, Z within two print units of where they were printed are held there while a
+    /// rotary turns; further off, or without a turn, they are left exact.
+    #[test]
+    fn hold_keeps_xyz_that_move_only_by_rounding() {
+        let f = feed(0, [0.0; 2], 4);
+        let a = f
+            .read(&joints(&f, [10.0, -17.3648, 31.5192, 10.0, 90.0]))
+            .expect("readable");
+        let held = |y: f64, c: f64| {
+            let mut end = joints(&f, [10.0, y, 31.5192, 10.0, c]);
+            f.hold(&a, &mut end);
+            end.get(Axis::Y)
+        };
+        assert_eq!(held(-17.36489, 95.0), Some(-17.3648));
+        assert_eq!(held(-17.36499, 95.0), Some(-17.3648));
+        assert_eq!(held(-17.3651, 95.0), Some(-17.3651));
+        assert_eq!(held(-17.36489, 90.0), Some(-17.36489));
+        let mut off = feed(0, [0.0; 2], 4);
+        off.hold_units = 0;
+        let mut end = joints(&off, [10.0, -17.36489, 31.5192, 10.0, 95.0]);
+        off.hold(&a, &mut end);
+        assert_eq!(end.get(Axis::Y), Some(-17.36489));
     }
 
     #[test]

@@ -1,250 +1,402 @@
-//! Two threads that share the pipeline's stages as they go: whichever thread is free takes
-//! the next batch that waits at a free stage, so the work shares itself out, whatever
-//! the passes cost.
-//!
-//! A fixed split of the passes between a reading thread and a writing thread leaves one
-//! of them idle whenever the input changes character (travel against extrusion, a flat
-//! layer against a curved one): the polar printer's two halves were within 5 % of each
-//! other over a whole print, yet each waited for the other about a seventh of the time.
-//! Here a stage (a pass, then the backend) runs on one batch at a time, and takes its
-//! batches in input order (each stage's inbox is filled in order by the stage before
-//! it), so the output, the diagnostics and every pass's state change exactly as on one
-//! thread. Only the reading thread reads (the input need not be `Send`); it reads while
-//! few batches are on their way, and otherwise works on stages like the other thread.
+//! The threaded run: the stages of a pipeline (the G-code frontend's lowering half, the
+//! passes, the backend) shared by two threads as they go, by the [`Schedule`].
 
-use std::collections::VecDeque;
-use std::sync::{Condvar, Mutex};
+use std::io::Write;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
+use super::schedule::{Batch, Schedule, Task};
+use super::{Stages, Summary, dump_blocks, finish_pass, run_pass, verify};
+use crate::back::Backend;
 use crate::diag::Diagnostic;
+use crate::front::{self, Frontend};
 use crate::ir::Block;
+use crate::passes::Pass;
 
-/// A batch of blocks on its way through the stages.
-pub(super) struct Batch {
-    /// Position in the input.
-    pub(super) seq: u64,
-    pub(super) blocks: Vec<Block>,
-    /// Diagnostics about these blocks, from the frontend and each stage in order.
-    pub(super) diags: Vec<Diagnostic>,
-    /// The input's last batch: every stage finishes after it.
-    pub(super) end: bool,
-}
-
-/// Work for a thread.
-pub(super) enum Task {
-    /// Read the next batch (the reading thread only).
-    Read,
-    /// Run stage `.0` on the batch.
-    Stage(usize, Batch),
-}
-
-/// The reading thread reads while fewer batches than this are on their way, and works on
-/// stages otherwise: reading is never held up (where it is the slowest stage, as in the
-/// identity pipeline, it runs all the time), and memory stays bounded (a batch of
-/// polar-printer output is about 0.6 MB).
-const MAX_IN_FLIGHT: usize = 8;
-
-/// Which stage runs which batch next.
-pub(super) struct Schedule {
-    state: Mutex<State>,
-    ready: Condvar,
-}
-
-struct State {
-    /// Batches waiting for each stage, in input order.
-    inbox: Vec<VecDeque<Batch>>,
-    /// Stages running a batch now.
-    busy: Vec<bool>,
-    /// The sequence number each stage takes next (checked in debug builds).
-    expected: Vec<u64>,
-    /// Batches read (or being read) and not yet through the last stage.
-    in_flight: usize,
-    /// The input is done (or reading stopped).
-    read_all: bool,
-    /// A thread panicked: everyone stops.
-    abort: bool,
-}
-
-impl State {
-    /// The last free stage with a batch waiting (later stages first, so batches leave
-    /// and memory stays low).
-    fn runnable(&mut self) -> Option<Task> {
-        let k = (0..self.inbox.len())
-            .rev()
-            .find(|&k| !self.busy[k] && !self.inbox[k].is_empty())?;
-        let batch = self.inbox[k].pop_front()?;
-        debug_assert_eq!(batch.seq, self.expected[k], "stage {k} out of order");
-        self.expected[k] += 1;
-        self.busy[k] = true;
-        Some(Task::Stage(k, batch))
-    }
-
-    fn read(&mut self) -> Task {
-        self.in_flight += 1;
-        Task::Read
-    }
-}
-
-impl Schedule {
-    /// A schedule for `stages` stages (the passes and the backend).
-    pub(super) fn new(stages: usize) -> Schedule {
-        Schedule {
-            state: Mutex::new(State {
-                inbox: (0..stages).map(|_| VecDeque::new()).collect(),
-                busy: vec![false; stages],
-                expected: vec![0; stages],
-                in_flight: 0,
-                read_all: false,
-                abort: false,
-            }),
-            ready: Condvar::new(),
-        }
-    }
-
-    /// The next task for a thread, waiting for one; `None` when the run is over or
-    /// aborted.
-    pub(super) fn next(&self, reader: bool) -> Option<Task> {
-        let mut s = self.state.lock().ok()?;
-        loop {
-            if s.abort {
-                return None;
-            }
-            if reader && !s.read_all && s.in_flight < MAX_IN_FLIGHT {
-                return Some(s.read());
-            }
-            if let Some(task) = s.runnable() {
-                return Some(task);
-            }
-            if s.read_all && s.in_flight == 0 {
-                return None;
-            }
-            s = self.ready.wait(s).ok()?;
-        }
-    }
-
-    /// A [`Task::Read`] is done: `batch` goes to the first stage (`None`: nothing was
-    /// read, and no more will be).
-    pub(super) fn read_done(&self, batch: Option<Batch>) {
-        if let Ok(mut s) = self.state.lock() {
-            match batch {
-                Some(b) => {
-                    s.read_all |= b.end;
-                    s.inbox[0].push_back(b);
-                }
-                None => {
-                    s.read_all = true;
-                    s.in_flight -= 1;
-                }
-            }
-        }
-        self.ready.notify_all();
-    }
-
-    /// Stage `k` is done with `batch`: it goes on to the next stage, or, after the last,
-    /// back to the caller.
-    pub(super) fn stage_done(&self, k: usize, batch: Batch) -> Option<Batch> {
-        let mut left = None;
-        if let Ok(mut s) = self.state.lock() {
-            s.busy[k] = false;
-            if k + 1 < s.inbox.len() {
-                s.inbox[k + 1].push_back(batch);
+impl Stages {
+    /// The passes and `backend` as the stages of one run, each stage with the IR dump of
+    /// its input when the dump point is there.
+    pub(super) fn relay<'a>(
+        &'a mut self,
+        backend: Box<dyn Backend + Send + 'a>,
+        mut tap: Option<verify::TapPoint>,
+    ) -> Relay<'a> {
+        let dump_at = self.dump_at;
+        let mut dump = self.dump.as_mut();
+        let count = self.passes.len();
+        let mut dump_before = |i: usize| {
+            if dump_at == Some(i) {
+                dump.take()
             } else {
-                s.in_flight -= 1;
-                left = Some(batch);
+                None
             }
-        }
-        self.ready.notify_all();
-        left
-    }
-
-    /// No more reading (the output cannot be written).
-    pub(super) fn stop_reading(&self) {
-        if let Ok(mut s) = self.state.lock() {
-            s.read_all = true;
-        }
-        self.ready.notify_all();
-    }
-
-    /// Stops both threads wherever they are.
-    pub(super) fn abort(&self) {
-        match self.state.lock() {
-            Ok(mut s) => s.abort = true,
-            Err(poisoned) => poisoned.into_inner().abort = true,
-        }
-        self.ready.notify_all();
-    }
-
-    /// Whether the run was aborted.
-    pub(super) fn aborted(&self) -> bool {
-        match self.state.lock() {
-            Ok(s) => s.abort,
-            Err(_) => true,
+        };
+        let passes: Vec<Mutex<PassStage<'_>>> = self
+            .passes
+            .iter_mut()
+            .enumerate()
+            .map(|(i, pass)| {
+                let dump = dump_before(i);
+                let tap = tap.take_if(|t| t.at == i);
+                Mutex::new(PassStage { pass, dump, tap })
+            })
+            .collect();
+        let writer = Mutex::new(WriterStage {
+            backend,
+            dump: dump_before(count),
+            written: 0,
+            tap,
+        });
+        Relay {
+            max_repeats: self.max_repeats,
+            schedule: Schedule::new(count + 1),
+            lowering: None,
+            blocks_in: AtomicU64::new(0),
+            spare_lexed: Mutex::new(Vec::new()),
+            passes,
+            writer,
+            failed: AtomicBool::new(false),
+            reports: Mutex::new(Vec::new()),
+            spare: Mutex::new(Vec::new()),
         }
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+/// Blocks the frontend reads per batch.
+const BATCH: usize = 1024;
 
-    fn batch(seq: u64, end: bool) -> Batch {
+/// Emptied batch buffers kept for reuse (a buffer grows to what the passes make of a
+/// batch once, not on every batch).
+const SPARE_BATCHES: usize = 4;
+
+/// A pass as a stage of a [`Relay`], with the IR dump of its input when the dump point
+/// is there.
+struct PassStage<'a> {
+    pass: &'a mut Box<dyn Pass>,
+    dump: Option<&'a mut Box<dyn Write + Send>>,
+    /// The programmed path of `--verify` is this stage's input.
+    tap: Option<verify::TapPoint>,
+}
+
+/// The backend as the last stage of a [`Relay`].
+struct WriterStage<'a> {
+    backend: Box<dyn Backend + Send + 'a>,
+    dump: Option<&'a mut Box<dyn Write + Send>>,
+    /// Blocks handed to the backend.
+    written: u64,
+    /// The programmed path of `--verify` is the backend's input (no machine pass).
+    tap: Option<verify::TapPoint>,
+}
+
+/// What a run reads: blocks from a frontend, or G-code lines whose lowering is a stage of
+/// its own, so that reading and lowering run on different threads.
+pub(super) enum Reading<'f> {
+    /// A frontend's blocks.
+    Blocks(&'f mut dyn Frontend),
+    /// G-code lines, and their lowering.
+    Lines(
+        &'f mut dyn front::gcode::ReadLines,
+        Box<front::gcode::Lowering>,
+    ),
+}
+
+/// How a threaded run ended.
+pub(super) struct Ended {
+    /// A stage panicked: the output is incomplete.
+    pub(super) aborted: bool,
+    /// Blocks handed to the backend.
+    pub(super) written: u64,
+    /// The output could not be written.
+    pub(super) failed: bool,
+}
+
+/// What the reading thread holds of a [`Reading`].
+enum Reader<'f> {
+    Blocks(&'f mut dyn Frontend),
+    Lines(&'f mut dyn front::gcode::ReadLines),
+}
+
+impl Reader<'_> {
+    fn bytes_read(&self) -> u64 {
+        match self {
+            Reader::Blocks(front) => front.bytes_read(),
+            Reader::Lines(lines) => lines.bytes_read(),
+        }
+    }
+}
+
+/// What the two threads of [`Pipeline::run_threaded`] share. The schedule gives a stage
+/// to one thread at a time, so its lock is never waited for.
+pub(super) struct Relay<'a> {
+    /// As [`Stages::max_repeats`].
+    max_repeats: u64,
+    schedule: Schedule,
+    /// The G-code frontend's lowering half, as the first stage: the reading thread only
+    /// reads and tokenises lines.
+    lowering: Option<Mutex<front::gcode::Lowering>>,
+    /// Blocks the frontend made.
+    blocks_in: AtomicU64,
+    /// Emptied line batches kept for reuse.
+    spare_lexed: Mutex<Vec<front::gcode::Lexed>>,
+    passes: Vec<Mutex<PassStage<'a>>>,
+    writer: Mutex<WriterStage<'a>>,
+    /// The output cannot be written: reading stops, passes skip their work.
+    failed: AtomicBool,
+    /// Each written batch's diagnostics, in input order, for the reading thread.
+    reports: Mutex<Vec<Vec<Diagnostic>>>,
+    spare: Mutex<Vec<Vec<Block>>>,
+}
+
+impl Relay<'_> {
+    /// Runs the whole input through the stages on this thread and one more: this one
+    /// reads the frontend whenever the schedule asks for input, both run whichever stage
+    /// is due. `deliver` gets each written batch's diagnostics, in input order.
+    pub(super) fn drive(
+        mut self,
+        reading: Reading<'_>,
+        progress: &mut Option<Box<dyn FnMut(u64)>>,
+        summary: &mut Summary,
+        deliver: &mut dyn FnMut(Vec<Vec<Diagnostic>>, &mut Summary),
+    ) -> Ended {
+        let mut reader = match reading {
+            Reading::Blocks(front) => Reader::Blocks(front),
+            Reading::Lines(lines, lowering) => {
+                // The lowering half is a stage of its own, before the passes.
+                self.lowering = Some(Mutex::new(*lowering));
+                self.schedule = Schedule::new(self.passes.len() + 2);
+                Reader::Lines(lines)
+            }
+        };
+        self.run(&mut reader, progress, summary, deliver);
+        Ended {
+            aborted: self.schedule.aborted(),
+            written: self
+                .writer
+                .into_inner()
+                .unwrap_or_else(|p| p.into_inner())
+                .written,
+            failed: self.failed.into_inner(),
+        }
+    }
+
+    /// [`Relay::drive`] once the stages are set.
+    fn run(
+        &self,
+        reader: &mut Reader<'_>,
+        progress: &mut Option<Box<dyn FnMut(u64)>>,
+        summary: &mut Summary,
+        deliver: &mut dyn FnMut(Vec<Vec<Diagnostic>>, &mut Summary),
+    ) {
+        std::thread::scope(|scope| {
+            let worker = scope.spawn(|| {
+                let mut next = Vec::with_capacity(BATCH);
+                while let Some(task) = self.schedule.next(false) {
+                    if let Task::Stage(k, batch) = task {
+                        self.stage_caught(k, batch, &mut next);
+                    }
+                }
+            });
+            let mut next = Vec::with_capacity(BATCH);
+            let mut seq = 0u64;
+            let mut lines_read = 0u64;
+            while let Some(task) = self.schedule.next(true) {
+                match task {
+                    Task::Read if self.failed.load(Ordering::Acquire) => {
+                        // Nothing more can be written: stop reading.
+                        self.schedule.read_done(None);
+                    }
+                    Task::Read => {
+                        let batch = self.read(reader, seq, &mut lines_read);
+                        if lines_read >= 1 << 14 {
+                            lines_read = 0;
+                            if let Some(p) = progress.as_mut() {
+                                p(reader.bytes_read());
+                            }
+                        }
+                        self.schedule.read_done(Some(batch));
+                        seq += 1;
+                    }
+                    Task::Stage(k, batch) => self.stage_caught(k, batch, &mut next),
+                }
+                deliver(self.take_reports(), summary);
+            }
+            if worker.join().is_err() {
+                self.schedule.abort();
+            }
+        });
+        summary.blocks_in = self.blocks_in.load(Ordering::Acquire);
+        deliver(self.take_reports(), summary);
+    }
+
+    /// The next batch from `reader`: blocks, or lines for the lowering stage; `count`
+    /// grows by what was read (blocks or lines), for progress reports.
+    fn read(&self, reader: &mut Reader<'_>, seq: u64, count: &mut u64) -> Batch {
+        let mut blocks = self.spare_batch();
+        let mut diags = Vec::new();
+        let mut lexed = front::gcode::Lexed::new();
+        let end = match reader {
+            Reader::Blocks(front) => {
+                front.next_batch(&mut blocks, BATCH, &mut diags);
+                self.blocks_in
+                    .fetch_add(blocks.len() as u64, Ordering::AcqRel);
+                *count += blocks.len() as u64;
+                blocks.is_empty()
+            }
+            Reader::Lines(lines) => {
+                if let Some(spare) = self.spare_lexed.lock().ok().and_then(|mut s| s.pop()) {
+                    lexed = spare;
+                }
+                lines.read(&mut lexed, BATCH);
+                *count += lexed.len() as u64;
+                lexed.is_end()
+            }
+        };
         Batch {
             seq,
-            blocks: Vec::new(),
-            diags: Vec::new(),
+            lexed,
+            blocks,
+            diags,
             end,
         }
     }
 
-    /// Two threads, one of them reading, take 200 batches through five stages: every
-    /// stage sees the batches in input order, one at a time, and the run ends.
-    #[test]
-    fn every_stage_sees_the_batches_in_order() {
-        const STAGES: usize = 5;
-        let schedule = Schedule::new(STAGES);
-        let seen: Vec<Mutex<Vec<u64>>> = (0..STAGES).map(|_| Mutex::new(Vec::new())).collect();
-        let next_seq = Mutex::new(0u64);
-        let work = |reader: bool| {
-            while let Some(task) = schedule.next(reader) {
-                match task {
-                    Task::Read => {
-                        let mut n = next_seq.lock().expect("not poisoned");
-                        let b = batch(*n, *n == 199);
-                        *n += 1;
-                        schedule.read_done(Some(b));
-                    }
-                    Task::Stage(k, b) => {
-                        // One at a time: the lock is never contended.
-                        let mut log = seen[k].try_lock().expect("a stage runs one batch");
-                        log.push(b.seq);
-                        drop(log);
-                        std::thread::yield_now();
-                        schedule.stage_done(k, b);
-                    }
-                }
+    /// The lowering stage: the batch's lines become its blocks.
+    fn lower(&self, lowering: &Mutex<front::gcode::Lowering>, batch: &mut Batch) {
+        let mut lowering = lowering.lock().unwrap_or_else(|p| p.into_inner());
+        if !self.failed.load(Ordering::Acquire) {
+            lowering.lower(&batch.lexed, &mut batch.blocks, &mut batch.diags);
+            self.blocks_in
+                .fetch_add(batch.blocks.len() as u64, Ordering::AcqRel);
+        }
+        let mut lexed = std::mem::take(&mut batch.lexed);
+        lexed.clear();
+        if let Ok(mut spare) = self.spare_lexed.lock()
+            && spare.len() < SPARE_BATCHES
+        {
+            spare.push(lexed);
+        }
+    }
+
+    /// Runs stage `k` (a pass, or after the last pass the backend) on `batch` and hands
+    /// the batch on.
+    fn stage(&self, k: usize, mut batch: Batch, next: &mut Vec<Block>) {
+        let pass = match &self.lowering {
+            Some(lowering) if k == 0 => {
+                self.lower(lowering, &mut batch);
+                None
             }
+            Some(_) => Some(k - 1),
+            None => Some(k),
         };
-        std::thread::scope(|s| {
-            s.spawn(|| work(false));
-            work(true);
-        });
-        for log in seen {
-            assert_eq!(
-                log.into_inner().expect("not poisoned"),
-                (0..200).collect::<Vec<u64>>()
+        match pass.map(|p| self.passes.get(p)) {
+            None => {}
+            Some(Some(stage)) => {
+                let mut stage = stage.lock().unwrap_or_else(|p| p.into_inner());
+                self.pass_stage(&mut stage, &mut batch, next);
+            }
+            Some(None) => {
+                let mut w = self.writer.lock().unwrap_or_else(|p| p.into_inner());
+                self.write(&mut w, &mut batch);
+            }
+        }
+        if let Some(mut done) = self.schedule.stage_done(k, batch) {
+            done.blocks.clear();
+            // A pass that cuts moves into many pieces (polar-ik, densify) grows a batch
+            // far beyond what the frontend reads; a kept buffer goes back to that size so
+            // that memory stays bounded by the batch size, not by the longest expansion.
+            done.blocks.shrink_to(BATCH);
+            if let Ok(mut spare) = self.spare.lock()
+                && spare.len() < SPARE_BATCHES
+            {
+                spare.push(done.blocks);
+            }
+        }
+    }
+
+    fn pass_stage(&self, stage: &mut PassStage<'_>, batch: &mut Batch, next: &mut Vec<Block>) {
+        if let Some(d) = stage.dump.as_mut() {
+            dump_blocks(d, &batch.blocks);
+        }
+        if let Some(t) = stage.tap.as_mut() {
+            t.record(&batch.blocks);
+        }
+        if self.failed.load(Ordering::Acquire) {
+            batch.blocks.clear();
+            return;
+        }
+        run_pass(
+            stage.pass,
+            &mut batch.blocks,
+            next,
+            &mut batch.diags,
+            self.max_repeats,
+        );
+        // The scratch buffer keeps the batch's size, as the spare buffers do.
+        next.shrink_to(BATCH);
+        if batch.end {
+            // What the pass still holds goes on after this batch's blocks.
+            finish_pass(
+                stage.pass,
+                &mut batch.blocks,
+                &mut batch.diags,
+                self.max_repeats,
             );
         }
     }
 
-    /// An aborted schedule lets a waiting thread go.
-    #[test]
-    fn abort_wakes_a_waiter() {
-        let schedule = Schedule::new(2);
-        std::thread::scope(|s| {
-            let waiter = s.spawn(|| schedule.next(false).is_none());
-            std::thread::sleep(std::time::Duration::from_millis(20));
-            schedule.abort();
-            assert!(waiter.join().expect("no panic"));
-        });
-        assert!(schedule.aborted());
+    fn write(&self, w: &mut WriterStage<'_>, batch: &mut Batch) {
+        if let Some(d) = w.dump.as_mut() {
+            dump_blocks(d, &batch.blocks);
+        }
+        if let Some(t) = w.tap.as_mut() {
+            t.record(&batch.blocks);
+        }
+        // Set by the first write error (a full disk, a closed pipe): nothing more is written.
+        if !self.failed.load(Ordering::Acquire) {
+            w.written += batch.blocks.len() as u64;
+            if w.backend
+                .write_batch(&batch.blocks, &mut batch.diags)
+                .is_err()
+            {
+                self.failed.store(true, Ordering::Release);
+                self.schedule.stop_reading();
+            } else if batch.end
+                && let Err(d) = w.backend.finish()
+            {
+                batch.diags.push(d);
+            }
+        }
+        // Still the backend's turn: the reports stay in input order.
+        if !batch.diags.is_empty()
+            && let Ok(mut r) = self.reports.lock()
+        {
+            r.push(std::mem::take(&mut batch.diags));
+        }
+    }
+
+    /// [`Relay::stage`], stopping the whole run if a pass or the backend panics (the
+    /// other thread would otherwise wait for this batch forever).
+    fn stage_caught(&self, k: usize, batch: Batch, next: &mut Vec<Block>) {
+        let ran =
+            std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.stage(k, batch, next)));
+        if ran.is_err() {
+            self.schedule.abort();
+        }
+    }
+
+    fn take_reports(&self) -> Vec<Vec<Diagnostic>> {
+        self.reports
+            .lock()
+            .map(|mut r| std::mem::take(&mut *r))
+            .unwrap_or_default()
+    }
+
+    /// An empty buffer for the next batch.
+    fn spare_batch(&self) -> Vec<Block> {
+        self.spare
+            .lock()
+            .ok()
+            .and_then(|mut s| s.pop())
+            .unwrap_or_else(|| Vec::with_capacity(BATCH))
     }
 }

@@ -13,6 +13,8 @@
 
 pub mod ast;
 pub use crate::num::lexer;
+pub mod lines;
+pub use lines::{Lexed, Lines, Lowering, ReadLines};
 pub(crate) use lower::{Lowerer, oword_call};
 mod lower;
 
@@ -21,7 +23,7 @@ use std::io::BufRead;
 use serde::{Deserialize, Serialize};
 
 use crate::diag::Diagnostic;
-use crate::front::{Frontend, LineReader, RawLine};
+use crate::front::Frontend;
 use crate::ir::Block;
 
 /// Frontend options.
@@ -57,7 +59,8 @@ impl Default for Options {
     }
 }
 
-/// Streaming G-code frontend over any buffered reader.
+/// Streaming G-code frontend over any buffered reader: the two halves of [`lines`] on
+/// one thread.
 ///
 /// ```
 /// use ncpost::front::{Frontend, gcode::{Parser, Options}};
@@ -71,13 +74,11 @@ impl Default for Options {
 /// assert!(diags.is_empty());
 /// ```
 pub struct Parser<R> {
-    reader: LineReader<R>,
-    lower: lower::Lowerer,
+    lines: Lines<R>,
+    lowering: Lowering,
+    lexed: Lexed,
     /// Blocks lowered but not yet handed out by `next_block`, in reverse order.
     pending: Vec<Block>,
-    lines: u64,
-    /// Lines rejected before lowering (too long, not UTF-8).
-    bad_lines: u64,
     done: bool,
 }
 
@@ -85,67 +86,25 @@ impl<R: BufRead> Parser<R> {
     /// A parser reading from `reader`.
     pub fn new(reader: R, options: Options) -> Self {
         Parser {
-            reader: LineReader::new(reader, options.max_line_len),
-            lower: lower::Lowerer::new(options),
+            lines: Lines::new(reader, options.max_line_len),
+            lowering: Lowering::new(options),
+            lexed: Lexed::new(),
             pending: Vec::new(),
-            lines: 0,
-            bad_lines: 0,
             done: false,
         }
+    }
+
+    /// The parser's two halves, to run on different threads.
+    pub fn into_halves(self) -> (Lines<R>, Lowering) {
+        (self.lines, self.lowering)
     }
 
     /// Reads lines until `out` holds at least `want` blocks or the input ends.
     fn read_into(&mut self, out: &mut Vec<Block>, want: usize, diags: &mut Vec<Diagnostic>) {
         while out.len() < want && !self.done {
-            match self.reader.next_line() {
-                Ok(Some((raw, span))) => {
-                    self.lines += 1;
-                    match raw {
-                        RawLine::Text(text) => self.lower.line(text, span, out, diags),
-                        RawLine::TooLong => diags.push({
-                            self.bad_lines += 1;
-                            Diagnostic::error(
-                                "gcode::line-too-long",
-                                format!(
-                                    "line {} is {} bytes long, over the limit of {} bytes",
-                                    span.line, span.len, self.lower.options.max_line_len
-                                ),
-                            )
-                            .at_span(span)
-                            .with_help(
-                                "this is not G-code a controller accepts; check that the file \
-                                 is not binary or missing its line breaks",
-                            )
-                        }),
-                        RawLine::NotUtf8 { valid_up_to, lossy } => {
-                            self.bad_lines += 1;
-                            diags.push(lower::not_utf8(span, valid_up_to, &lossy))
-                        }
-                    }
-                }
-                Ok(None) => {
-                    self.done = true;
-                    if self.lines == 0 || (!self.lower.saw_text() && self.bad_lines == 0) {
-                        let what = if self.lines == 0 {
-                            "the input is empty"
-                        } else {
-                            "the input has only blank lines"
-                        };
-                        diags.push(
-                            Diagnostic::error("gcode::empty", what)
-                                .with_help("give a file with at least one G-code line or comment"),
-                        );
-                    }
-                    self.lower.finish(diags);
-                }
-                Err(e) => {
-                    self.done = true;
-                    diags.push(Diagnostic::io(
-                        "io::read",
-                        format!("cannot read the input: {e}"),
-                    ));
-                }
-            }
+            self.lines.read(&mut self.lexed, want - out.len());
+            self.lowering.lower(&self.lexed, out, diags);
+            self.done = self.lexed.is_end();
         }
     }
 }
@@ -169,7 +128,7 @@ impl<R: BufRead> Frontend for Parser<R> {
     }
 
     fn bytes_read(&self) -> u64 {
-        self.reader.bytes_read()
+        self.lines.bytes_read()
     }
 }
 

@@ -2,47 +2,14 @@
 //! not depend on the frontends, so the pipeline hands the pass a [`Relower`] over the
 //! G-code lowerer (the pipeline's `gcode_relower`) in [`crate::passes::Context`].
 
-use serde::{Deserialize, Serialize};
-
 use crate::diag::Diagnostic;
 use crate::ir::{Block, Modal, Span};
 
-/// The frontend options bodies are lowered with: the `[input]` table of the pass, with
-/// the fields and defaults of the G-code frontend's options (`tests/subprograms.rs`
-/// keeps them equal).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct Input {
-    /// `G4 P` counts milliseconds (RepRapFirmware, Marlin, Fanuc) rather than seconds
-    /// (LinuxCNC).
-    pub dwell_p_milliseconds: bool,
-    /// Largest difference between an arc's start and end radius, mm, below which the
-    /// arc is accepted (a relative 0.1 % of the radius is also allowed).
-    pub arc_tolerance: f64,
-    /// An arc whose end is off its circle by more than the tolerance is an error; when
-    /// false it is a warning and the arc is kept as written.
-    pub strict_arcs: bool,
-    /// Longest line accepted, bytes; a longer line is an error and is skipped.
-    pub max_line_len: usize,
-    /// The dialect (`auto`: from the header comments).
-    pub dialect: crate::ir::Dialect,
-}
-
-impl Default for Input {
-    fn default() -> Self {
-        Input {
-            dwell_p_milliseconds: true,
-            arc_tolerance: 0.01,
-            strict_arcs: true,
-            max_line_len: 1 << 20,
-            dialect: crate::ir::Dialect::Auto,
-        }
-    }
-}
-
-/// Makes the G-code lowerer for frontend options `input`; `Err` when the frontend does
-/// not take them. The pipeline fills [`crate::passes::Context::relower`] with one.
-pub type Relower = fn(input: &Input) -> Result<Box<dyn Lowering>, Diagnostic>;
+/// Makes the G-code lowerer for the frontend options in the table `input` (the G-code
+/// frontend's `[gcode_input]` fields; the frontend reads them, so the pass keeps no copy
+/// of their names and defaults); `Err` when the frontend does not take them. The
+/// pipeline fills [`crate::passes::Context::relower`] with one.
+pub type Relower = fn(input: &toml::Table) -> Result<Box<dyn Lowering>, Diagnostic>;
 
 /// The G-code lowerer, for subprogram bodies.
 pub trait Lowering: Send {

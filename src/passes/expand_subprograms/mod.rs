@@ -94,7 +94,7 @@ use crate::ir::{Block, Span};
 use calls::main_call;
 use defs::{collect_definitions, subprogram_related};
 use expand::{Expander, Site};
-use lower::{Input, Lowering, Relower};
+use lower::{Lowering, Relower};
 use main::MainState;
 
 /// Options of `expand-subprograms`.
@@ -109,8 +109,9 @@ pub struct Options {
     pub max_blocks: u64,
     /// Read `M98 P<count><4-digit program>` (no `L`) as the Fanuc packed form.
     pub packed_count: bool,
-    /// Frontend options the bodies are lowered with.
-    pub input: Input,
+    /// Frontend options the bodies are lowered with: the fields of `[gcode_input]`, over
+    /// the preset's `[gcode_input]` (the pipeline fills them in).
+    pub input: toml::Table,
 }
 
 impl Default for Options {
@@ -120,7 +121,7 @@ impl Default for Options {
             max_count: 9999,
             max_blocks: 10_000_000,
             packed_count: false,
-            input: Input::default(),
+            input: toml::Table::new(),
         }
     }
 }

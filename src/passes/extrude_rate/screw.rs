@@ -35,7 +35,7 @@ impl ExtrudeRate {
     }
 
     fn printed_feed(&self, f: f64) -> f64 {
-        self.decimals.and_then(|d| printed(f, d.feed)).unwrap_or(f)
+        self.decimals.and_then(|d| d.printed_feed(f)).unwrap_or(f)
     }
 
     /// The largest printable feed not above `f` (a slowed block must not come out

@@ -5,7 +5,6 @@
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, Motion, Span, Target};
 use crate::motion::{self, Segment};
-use crate::num::print::printed;
 
 use super::window::{Item, Kind, MoveData, cv_duration};
 use super::{HOLD_MARGIN_S, Output, ValveLookahead};
@@ -50,7 +49,7 @@ impl ValveLookahead {
         let printed_feed = |f: f64| {
             self.track
                 .decimals
-                .and_then(|d| printed(f, d.feed))
+                .and_then(|d| d.printed_feed(f))
                 .unwrap_or(f)
         };
         let feed = crate::ir::Feed {

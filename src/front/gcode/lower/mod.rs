@@ -265,6 +265,21 @@ impl Lowerer {
         out: &mut Vec<Block>,
         diags: &mut Vec<Diagnostic>,
     ) {
+        let mut toks = recycle(std::mem::take(&mut self.toks));
+        super::lexer::lex_line(text, &mut toks);
+        self.lexed_line(text, span, &toks, out, diags);
+        self.toks = recycle(toks);
+    }
+
+    /// [`Lowerer::line`] for a line already split into `toks`.
+    pub(super) fn lexed_line(
+        &mut self,
+        text: &str,
+        span: Span,
+        toks: &[Spanned<'_>],
+        out: &mut Vec<Block>,
+        diags: &mut Vec<Diagnostic>,
+    ) {
         if text.trim().is_empty() {
             return;
         }
@@ -312,11 +327,7 @@ impl Lowerer {
             }
             return;
         }
-        // The token buffer keeps its memory from line to line.
-        let mut toks = recycle(std::mem::take(&mut self.toks));
-        super::lexer::lex_line(text, &mut toks);
-        self.tokens(text, span, indent, &toks, out, diags);
-        self.toks = recycle(toks);
+        self.tokens(text, span, indent, toks, out, diags);
     }
 
     /// Lowers a line from its tokens (the rest of [`Lowerer::line`]).
@@ -380,7 +391,7 @@ enum Unplain {
 
 /// An empty token vector of another lifetime, keeping `v`'s allocation (collecting an
 /// emptied vector into one of the same layout reuses its memory).
-fn recycle<'b>(mut v: Vec<Spanned<'_>>) -> Vec<Spanned<'b>> {
+pub(super) fn recycle<'b>(mut v: Vec<Spanned<'_>>) -> Vec<Spanned<'b>> {
     v.clear();
     v.into_iter()
         .map(|_| unreachable!("the vector is empty"))

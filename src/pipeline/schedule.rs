@@ -1,0 +1,255 @@
+//! Two threads that share the pipeline's stages as they go: whichever thread is free takes
+//! the next batch that waits at a free stage, so the work shares itself out, whatever
+//! the passes cost.
+//!
+//! A fixed split of the passes between a reading thread and a writing thread leaves one
+//! of them idle whenever the input changes character (travel against extrusion, a flat
+//! layer against a curved one): the polar printer's two halves were within 5 % of each
+//! other over a whole print, yet each waited for the other about a seventh of the time.
+//! Here a stage (a pass, then the backend) runs on one batch at a time, and takes its
+//! batches in input order (each stage's inbox is filled in order by the stage before
+//! it), so the output, the diagnostics and every pass's state change exactly as on one
+//! thread. Only the reading thread reads (the input need not be `Send`); it reads while
+//! few batches are on their way, and otherwise works on stages like the other thread.
+
+use std::collections::VecDeque;
+use std::sync::{Condvar, Mutex};
+
+use crate::diag::Diagnostic;
+use crate::front::gcode::Lexed;
+use crate::ir::Block;
+
+/// A batch of blocks on its way through the stages.
+pub(super) struct Batch {
+    /// Position in the input.
+    pub(super) seq: u64,
+    /// Lines still to be lowered (G-code, whose lowering is a stage of its own), else
+    /// empty.
+    pub(super) lexed: Lexed,
+    pub(super) blocks: Vec<Block>,
+    /// Diagnostics about these blocks, from the frontend and each stage in order.
+    pub(super) diags: Vec<Diagnostic>,
+    /// The input's last batch: every stage finishes after it.
+    pub(super) end: bool,
+}
+
+/// Work for a thread.
+pub(super) enum Task {
+    /// Read the next batch (the reading thread only).
+    Read,
+    /// Run stage `.0` on the batch.
+    Stage(usize, Batch),
+}
+
+/// The reading thread reads while fewer batches than this are on their way, and works on
+/// stages otherwise: reading is never held up (where it is the slowest stage, as in the
+/// identity pipeline, it runs all the time), and memory stays bounded (a batch of
+/// polar-printer output is about 0.6 MB).
+const MAX_IN_FLIGHT: usize = 8;
+
+/// Which stage runs which batch next.
+pub(super) struct Schedule {
+    state: Mutex<State>,
+    ready: Condvar,
+}
+
+struct State {
+    /// Batches waiting for each stage, in input order.
+    inbox: Vec<VecDeque<Batch>>,
+    /// Stages running a batch now.
+    busy: Vec<bool>,
+    /// The sequence number each stage takes next (checked in debug builds).
+    expected: Vec<u64>,
+    /// Batches read (or being read) and not yet through the last stage.
+    in_flight: usize,
+    /// The input is done (or reading stopped).
+    read_all: bool,
+    /// A thread panicked: everyone stops.
+    abort: bool,
+}
+
+impl State {
+    /// The last free stage with a batch waiting (later stages first, so batches leave
+    /// and memory stays low).
+    fn runnable(&mut self) -> Option<Task> {
+        let k = (0..self.inbox.len())
+            .rev()
+            .find(|&k| !self.busy[k] && !self.inbox[k].is_empty())?;
+        let batch = self.inbox[k].pop_front()?;
+        debug_assert_eq!(batch.seq, self.expected[k], "stage {k} out of order");
+        self.expected[k] += 1;
+        self.busy[k] = true;
+        Some(Task::Stage(k, batch))
+    }
+
+    fn read(&mut self) -> Task {
+        self.in_flight += 1;
+        Task::Read
+    }
+}
+
+impl Schedule {
+    /// A schedule for `stages` stages (the passes and the backend).
+    pub(super) fn new(stages: usize) -> Schedule {
+        Schedule {
+            state: Mutex::new(State {
+                inbox: (0..stages).map(|_| VecDeque::new()).collect(),
+                busy: vec![false; stages],
+                expected: vec![0; stages],
+                in_flight: 0,
+                read_all: false,
+                abort: false,
+            }),
+            ready: Condvar::new(),
+        }
+    }
+
+    /// The next task for a thread, waiting for one; `None` when the run is over or
+    /// aborted.
+    pub(super) fn next(&self, reader: bool) -> Option<Task> {
+        let mut s = self.state.lock().ok()?;
+        loop {
+            if s.abort {
+                return None;
+            }
+            if reader && !s.read_all && s.in_flight < MAX_IN_FLIGHT {
+                return Some(s.read());
+            }
+            if let Some(task) = s.runnable() {
+                return Some(task);
+            }
+            if s.read_all && s.in_flight == 0 {
+                return None;
+            }
+            s = self.ready.wait(s).ok()?;
+        }
+    }
+
+    /// A [`Task::Read`] is done: `batch` goes to the first stage (`None`: nothing was
+    /// read, and no more will be).
+    pub(super) fn read_done(&self, batch: Option<Batch>) {
+        if let Ok(mut s) = self.state.lock() {
+            match batch {
+                Some(b) => {
+                    s.read_all |= b.end;
+                    s.inbox[0].push_back(b);
+                }
+                None => {
+                    s.read_all = true;
+                    s.in_flight -= 1;
+                }
+            }
+        }
+        self.ready.notify_all();
+    }
+
+    /// Stage `k` is done with `batch`: it goes on to the next stage, or, after the last,
+    /// back to the caller.
+    pub(super) fn stage_done(&self, k: usize, batch: Batch) -> Option<Batch> {
+        let mut left = None;
+        if let Ok(mut s) = self.state.lock() {
+            s.busy[k] = false;
+            if k + 1 < s.inbox.len() {
+                s.inbox[k + 1].push_back(batch);
+            } else {
+                s.in_flight -= 1;
+                left = Some(batch);
+            }
+        }
+        self.ready.notify_all();
+        left
+    }
+
+    /// No more reading (the output cannot be written).
+    pub(super) fn stop_reading(&self) {
+        if let Ok(mut s) = self.state.lock() {
+            s.read_all = true;
+        }
+        self.ready.notify_all();
+    }
+
+    /// Stops both threads wherever they are.
+    pub(super) fn abort(&self) {
+        match self.state.lock() {
+            Ok(mut s) => s.abort = true,
+            Err(poisoned) => poisoned.into_inner().abort = true,
+        }
+        self.ready.notify_all();
+    }
+
+    /// Whether the run was aborted.
+    pub(super) fn aborted(&self) -> bool {
+        match self.state.lock() {
+            Ok(s) => s.abort,
+            Err(_) => true,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn batch(seq: u64, end: bool) -> Batch {
+        Batch {
+            seq,
+            lexed: Lexed::new(),
+            blocks: Vec::new(),
+            diags: Vec::new(),
+            end,
+        }
+    }
+
+    /// Two threads, one of them reading, take 200 batches through five stages: every
+    /// stage sees the batches in input order, one at a time, and the run ends.
+    #[test]
+    fn every_stage_sees_the_batches_in_order() {
+        const STAGES: usize = 5;
+        let schedule = Schedule::new(STAGES);
+        let seen: Vec<Mutex<Vec<u64>>> = (0..STAGES).map(|_| Mutex::new(Vec::new())).collect();
+        let next_seq = Mutex::new(0u64);
+        let work = |reader: bool| {
+            while let Some(task) = schedule.next(reader) {
+                match task {
+                    Task::Read => {
+                        let mut n = next_seq.lock().expect("not poisoned");
+                        let b = batch(*n, *n == 199);
+                        *n += 1;
+                        schedule.read_done(Some(b));
+                    }
+                    Task::Stage(k, b) => {
+                        // One at a time: the lock is never contended.
+                        let mut log = seen[k].try_lock().expect("a stage runs one batch");
+                        log.push(b.seq);
+                        drop(log);
+                        std::thread::yield_now();
+                        schedule.stage_done(k, b);
+                    }
+                }
+            }
+        };
+        std::thread::scope(|s| {
+            s.spawn(|| work(false));
+            work(true);
+        });
+        for log in seen {
+            assert_eq!(
+                log.into_inner().expect("not poisoned"),
+                (0..200).collect::<Vec<u64>>()
+            );
+        }
+    }
+
+    /// An aborted schedule lets a waiting thread go.
+    #[test]
+    fn abort_wakes_a_waiter() {
+        let schedule = Schedule::new(2);
+        std::thread::scope(|s| {
+            let waiter = s.spawn(|| schedule.next(false).is_none());
+            std::thread::sleep(std::time::Duration::from_millis(20));
+            schedule.abort();
+            assert!(waiter.join().expect("no panic"));
+        });
+        assert!(schedule.aborted());
+    }
+}
