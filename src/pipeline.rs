@@ -238,23 +238,9 @@ impl Builder {
             }
             passes.push(passes::build(&spec.name, &options, &context)?);
         }
-        let dump_at = match &self.dump_after {
-            None => None,
-            Some(n) if n == "front" => Some(0),
-            Some(n) => Some(
-                self.preset
-                    .passes
-                    .iter()
-                    .position(|p| p.name == *n)
-                    .map(|i| i + 1)
-                    .ok_or_else(|| {
-                        Diagnostic::settings(format!("--dump-after {n}: the pipeline has no pass `{n}` (use `front` for the frontend's output)"))
-                    })?,
-            ),
-        };
-        let verify = verify::mode(self.verify, &self.preset, self.timing);
+        let dump_at = self.dump_point()?;
         Ok(Pipeline {
-            verify,
+            verify: verify::mode(self.verify, &self.preset, self.timing),
             preset: self.preset,
             stages: Stages {
                 passes,
@@ -264,6 +250,22 @@ impl Builder {
             },
             progress: None,
             notes,
+        })
+    }
+}
+
+impl Builder {
+    /// The dump point: 0 after the frontend, i + 1 after pass i.
+    fn dump_point(&self) -> Result<Option<usize>, Diagnostic> {
+        let Some(n) = &self.dump_after else {
+            return Ok(None);
+        };
+        if n == "front" {
+            return Ok(Some(0));
+        }
+        let at = self.preset.passes.iter().position(|p| p.name == *n);
+        at.map(|i| Some(i + 1)).ok_or_else(|| {
+            Diagnostic::settings(format!("--dump-after {n}: the pipeline has no pass `{n}` (use `front` for the frontend's output)"))
         })
     }
 }
