@@ -27,6 +27,7 @@ pub mod passes;
 pub mod pipeline;
 pub mod plot;
 pub mod preset;
+pub mod readback;
 pub mod valid;
 
 pub use diag::{Diagnostic, Kind, Severity};

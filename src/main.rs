@@ -148,6 +148,15 @@ struct RunArgs {
     /// Print the IR after pass NAME (or `front`) to standard error.
     #[arg(long, value_name = "PASS")]
     dump_after: Option<String>,
+    /// Read the printed program back as the controller reads it and check it against
+    /// the programmed path (tip, tool axis, block times, valve leads, material, limits);
+    /// a violated tolerance is an error and no output is written. Default: on for
+    /// presets with a [machine] or [polar] table.
+    #[arg(long, overrides_with = "no_verify")]
+    verify: bool,
+    /// Do not read the printed program back (see --verify).
+    #[arg(long, overrides_with = "verify")]
+    no_verify: bool,
 }
 
 #[derive(Args)]
@@ -260,8 +269,13 @@ fn main() -> ExitCode {
             args.emit,
             args.output.as_deref(),
             args.dump_after.as_deref(),
+            match (args.verify, args.no_verify) {
+                (true, _) => Some(true),
+                (_, true) => Some(false),
+                _ => None,
+            },
         ),
-        Command::Check(args) => run(&args, true, None, None, None),
+        Command::Check(args) => run(&args, true, None, None, None, None),
         Command::Plot(args) => plot(&args),
         Command::Stats(args) => stats(&args),
         Command::Machine(MachineCommand::ConfigG(args)) => config_g(&args),
@@ -501,16 +515,21 @@ fn usage(msg: impl AsRef<str>) -> ExitCode {
     ExitCode::from(EXIT_USAGE)
 }
 
-/// Runs the pipeline; with `check_only` the output is discarded.
+/// Runs the pipeline; with `check_only` the output is discarded. `verify` overrides the
+/// preset's default of `--verify`.
 fn run(
     args: &PipelineArgs,
     check_only: bool,
     emit: Option<EmitArg>,
     output: Option<&Path>,
     dump_after: Option<&str>,
+    verify: Option<bool>,
 ) -> ExitCode {
     let builder = match builder(args, emit, dump_after) {
-        Ok(b) => b,
+        Ok(b) => {
+            let on = verify.unwrap_or_else(|| ncpost::pipeline::verify_by_default(b.preset_ref()));
+            b.verify(on)
+        }
         Err(e) => return usage(e.message),
     };
     let source = match args.from.unwrap_or_else(|| from_extension(&args.input)) {

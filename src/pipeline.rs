@@ -2,6 +2,9 @@
 
 mod relay;
 mod schedule;
+mod verify;
+
+pub use verify::by_default as verify_by_default;
 
 use std::io::{BufRead, Write};
 
@@ -65,6 +68,7 @@ pub struct Builder {
     dump: Option<Box<dyn Write + Send>>,
     timing: Option<crate::motion::Timing>,
     max_repeats: Option<u64>,
+    verify: Option<bool>,
 }
 
 /// A configured pipeline, ready to run.
@@ -74,6 +78,8 @@ pub struct Pipeline {
     progress: Option<Box<dyn FnMut(u64)>>,
     /// Notes from building the pipeline, reported when it runs.
     notes: Vec<Diagnostic>,
+    /// Read the printed program back and check it ([`Builder::verify`]).
+    verify: verify::Mode,
 }
 
 /// The passes and the IR dump point: everything between frontend and backend.
@@ -136,6 +142,16 @@ impl Builder {
     /// command line uses [`crate::diag::DEFAULT_LIMIT`]).
     pub fn max_repeats(mut self, n: u64) -> Self {
         self.max_repeats = Some(n);
+        self
+    }
+
+    /// Reads the printed program back as the controller reads it and checks it against
+    /// the programmed path (`--verify`, see [`crate::readback`]); a violated tolerance is
+    /// an error of the run. Unset: as the preset's `[verify] enabled` says, else off (the
+    /// command line turns it on for presets with a `[machine]` or `[polar]` table:
+    /// [`verify_by_default`]).
+    pub fn verify(mut self, on: bool) -> Self {
+        self.verify = Some(on);
         self
     }
 
@@ -218,21 +234,9 @@ impl Builder {
             }
             passes.push(passes::build(&spec.name, &options, &context)?);
         }
-        let dump_at = match &self.dump_after {
-            None => None,
-            Some(n) if n == "front" => Some(0),
-            Some(n) => Some(
-                self.preset
-                    .passes
-                    .iter()
-                    .position(|p| p.name == *n)
-                    .map(|i| i + 1)
-                    .ok_or_else(|| {
-                        Diagnostic::settings(format!("--dump-after {n}: the pipeline has no pass `{n}` (use `front` for the frontend's output)"))
-                    })?,
-            ),
-        };
+        let dump_at = self.dump_point()?;
         Ok(Pipeline {
+            verify: verify::mode(self.verify, &self.preset, self.timing),
             preset: self.preset,
             stages: Stages {
                 passes,
@@ -242,6 +246,22 @@ impl Builder {
             },
             progress: None,
             notes,
+        })
+    }
+}
+
+impl Builder {
+    /// The dump point: 0 after the frontend, i + 1 after pass i.
+    fn dump_point(&self) -> Result<Option<usize>, Diagnostic> {
+        let Some(n) = &self.dump_after else {
+            return Ok(None);
+        };
+        if n == "front" {
+            return Ok(Some(0));
+        }
+        let at = self.preset.passes.iter().position(|p| p.name == *n);
+        at.map(|i| Some(i + 1)).ok_or_else(|| {
+            Diagnostic::settings(format!("--dump-after {n}: the pipeline has no pass `{n}` (use `front` for the frontend's output)"))
         })
     }
 }
@@ -337,8 +357,9 @@ impl Pipeline {
             let mut notes = self.notes.clone();
             report(&mut notes, on_diag, &mut summary, &mut flood);
         }
-        let mut out = std::io::BufWriter::with_capacity(1 << 16, output);
-        let backend = backend_for(&self.preset, &mut out);
+        let out = std::io::BufWriter::with_capacity(1 << 16, output);
+        let (tap, mut tee) = verify::start(&self.verify, &self.preset, out);
+        let backend = backend_for(&self.preset, &mut tee);
         let progress = &mut self.progress;
         let mut io_error = None;
         let mut deliver = |reports: Vec<Vec<Diagnostic>>, summary: &mut Summary| {
@@ -359,11 +380,16 @@ impl Pipeline {
             failed,
         } = self
             .stages
-            .relay(backend)
+            .relay(backend, tap)
             .drive(reading, progress, &mut summary, &mut deliver);
         summary.blocks_out = written;
         if let Some(d) = &mut self.stages.dump {
             let _ = d.flush();
+        }
+        // The readback of a run that failed already would only repeat its errors.
+        let (readback, mut out) = tee.finish();
+        if !aborted && !failed && summary.errors == 0 {
+            deliver(vec![readback], &mut summary);
         }
         if aborted {
             deliver(

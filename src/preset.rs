@@ -62,6 +62,8 @@ pub struct Preset {
     pub rrf: rrf::Options,
     /// Grbl backend options.
     pub grbl: grbl::Options,
+    /// Tolerances of `ncpost run --verify` (the readback of the printed program).
+    pub verify: crate::readback::Settings,
 }
 
 /// Built-in presets: (name, TOML text).

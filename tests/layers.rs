@@ -23,6 +23,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("back", &["ir", "num", "diag"]),
     ("machine", &["ir", "num", "diag"]),
     ("motion", &["ir", "num", "diag", "machine"]),
+    ("readback", &["ir", "num", "diag", "machine", "motion"]),
     (
         "passes",
         &[
@@ -48,6 +49,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "machine",
             "motion",
             "passes",
+            "readback",
         ],
     ),
     (
@@ -63,6 +65,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "machine",
             "motion",
             "passes",
+            "readback",
             "preset",
         ],
     ),
@@ -79,6 +82,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "machine",
             "motion",
             "passes",
+            "readback",
             "preset",
             "pipeline",
         ],

@@ -6,7 +6,7 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use super::schedule::{Batch, Schedule, Task};
-use super::{Stages, Summary, dump_blocks, finish_pass, run_pass};
+use super::{Stages, Summary, dump_blocks, finish_pass, run_pass, verify};
 use crate::back::Backend;
 use crate::diag::Diagnostic;
 use crate::front::{self, Frontend};
@@ -16,7 +16,11 @@ use crate::passes::Pass;
 impl Stages {
     /// The passes and `backend` as the stages of one run, each stage with the IR dump of
     /// its input when the dump point is there.
-    pub(super) fn relay<'a>(&'a mut self, backend: Box<dyn Backend + Send + 'a>) -> Relay<'a> {
+    pub(super) fn relay<'a>(
+        &'a mut self,
+        backend: Box<dyn Backend + Send + 'a>,
+        mut tap: Option<verify::TapPoint>,
+    ) -> Relay<'a> {
         let dump_at = self.dump_at;
         let mut dump = self.dump.as_mut();
         let count = self.passes.len();
@@ -33,13 +37,15 @@ impl Stages {
             .enumerate()
             .map(|(i, pass)| {
                 let dump = dump_before(i);
-                Mutex::new(PassStage { pass, dump })
+                let tap = tap.take_if(|t| t.at == i);
+                Mutex::new(PassStage { pass, dump, tap })
             })
             .collect();
         let writer = Mutex::new(WriterStage {
             backend,
             dump: dump_before(count),
             written: 0,
+            tap,
         });
         Relay {
             max_repeats: self.max_repeats,
@@ -68,6 +74,8 @@ const SPARE_BATCHES: usize = 4;
 struct PassStage<'a> {
     pass: &'a mut Box<dyn Pass>,
     dump: Option<&'a mut Box<dyn Write + Send>>,
+    /// The programmed path of `--verify` is this stage's input.
+    tap: Option<verify::TapPoint>,
 }
 
 /// The backend as the last stage of a [`Relay`].
@@ -76,6 +84,8 @@ struct WriterStage<'a> {
     dump: Option<&'a mut Box<dyn Write + Send>>,
     /// Blocks handed to the backend.
     written: u64,
+    /// The programmed path of `--verify` is the backend's input (no machine pass).
+    tap: Option<verify::TapPoint>,
 }
 
 /// What a run reads: blocks from a frontend, or G-code lines whose lowering is a stage of
@@ -307,6 +317,9 @@ impl Relay<'_> {
         if let Some(d) = stage.dump.as_mut() {
             dump_blocks(d, &batch.blocks);
         }
+        if let Some(t) = stage.tap.as_mut() {
+            t.record(&batch.blocks);
+        }
         if self.failed.load(Ordering::Acquire) {
             batch.blocks.clear();
             return;
@@ -334,6 +347,9 @@ impl Relay<'_> {
     fn write(&self, w: &mut WriterStage<'_>, batch: &mut Batch) {
         if let Some(d) = w.dump.as_mut() {
             dump_blocks(d, &batch.blocks);
+        }
+        if let Some(t) = w.tap.as_mut() {
+            t.record(&batch.blocks);
         }
         // Set by the first write error (a full disk, a closed pipe): nothing more is written.
         if !self.failed.load(Ordering::Acquire) {

@@ -1,0 +1,485 @@
+//! The readback: a second reading of the PRINTED program, the way the target controller
+//! reads it, and its comparison with the programmed path (`ncpost run --verify`, issue 20).
+//!
+//! ncpost's passes compute with their own model of the machine. The readback does not
+//! trust it: [`Reader`] re-reads the emitted text with its own modal state (it shares
+//! only the word lexer and the decimal reader with the G-code frontend) and times every
+//! block as the controller does (the flavour's `G0` rule, the minimum speed, the per-axis
+//! caps); [`Checker`] maps the printed joints back through the one kinematic chain
+//! (`machine` forward kinematics, or the polar arm) and compares them with the programmed
+//! path, the IR as it was before the machine passes ([`Tap`]).
+//!
+//! Once per run it gives [`Figures`]: the worst tip deviation from the programmed path,
+//! the worst tool-axis deviation, the worst block time error against the programmed feed,
+//! the worst valve lead error, the material error per file and worst per block (polar),
+//! and the smallest limit margin, each with the line of the printed program (and the
+//! source line). [`Figures::diagnostics`] makes of them one note and an error for each
+//! violated tolerance.
+//!
+//! The reading streams: the checker holds the programmed vertices between the tap and
+//! the printed text (a few batches) and nothing of the printed text but its current line.
+
+mod check;
+mod path;
+mod reader;
+
+pub use check::{Checker, Queue};
+pub use path::{Kinematics, Tap, Vertex};
+pub use reader::{Event, Move, Reader, dwell_p_unit};
+
+use serde::{Deserialize, Serialize};
+
+use crate::diag::Diagnostic;
+
+/// The `[verify]` section of a preset: tolerance overrides of `ncpost run --verify`.
+/// Unset tolerances come from the passes' own options.
+///
+/// ```
+/// let s: ncpost::readback::Settings = toml::from_str("time = 0.02").unwrap();
+/// assert_eq!(s.time, 0.02);
+/// assert_eq!(s.valve_lead, 0.001);
+/// assert_eq!(s.tip, None);
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct Settings {
+    /// Whether runs with this preset verify by default (`--verify`/`--no-verify` win);
+    /// unset: when the preset has a `[machine]` or `[polar]` table.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub enabled: Option<bool>,
+    /// Largest tip deviation, mm; unset: the `densify` pass's `tip_tolerance` (5-axis)
+    /// or the `polar-ik` pass's `tolerance`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tip: Option<f64>,
+    /// Largest tool-axis deviation, degrees; unset: `densify`'s `axis_tolerance`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub axis: Option<f64>,
+    /// Largest block time error, relative to the programmed time.
+    pub time: f64,
+    /// Largest valve lead error, seconds.
+    pub valve_lead: f64,
+    /// Largest material error of the whole file, relative.
+    pub material_file: f64,
+    /// Largest material error of one block, relative.
+    pub material_block: f64,
+}
+
+impl Default for Settings {
+    fn default() -> Self {
+        Settings {
+            enabled: None,
+            tip: None,
+            axis: None,
+            time: 0.01,
+            valve_lead: 0.001,
+            material_file: 0.005,
+            material_block: 0.01,
+        }
+    }
+}
+
+/// The tolerances one run checks.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Tolerances {
+    /// Tip deviation, mm.
+    pub tip: f64,
+    /// Tool-axis deviation, degrees.
+    pub axis: f64,
+    /// Block time error, relative.
+    pub time: f64,
+    /// Valve lead error, seconds.
+    pub valve_lead: f64,
+    /// Material error per file, relative.
+    pub material_file: f64,
+    /// Material error per block, relative.
+    pub material_block: f64,
+}
+
+impl Tolerances {
+    /// The tolerances of `settings`, with `tip` and `axis` for what it leaves unset.
+    pub fn new(settings: &Settings, tip: f64, axis: f64) -> Tolerances {
+        Tolerances {
+            tip: settings.tip.unwrap_or(tip),
+            axis: settings.axis.unwrap_or(axis),
+            time: settings.time,
+            valve_lead: settings.valve_lead,
+            material_file: settings.material_file,
+            material_block: settings.material_block,
+        }
+    }
+
+    /// How close a printed end must come to a programmed vertex to reach it, mm: a
+    /// quarter of the tip tolerance (the printed digits are far finer).
+    fn hit_tip(&self) -> f64 {
+        self.tip / 4.0
+    }
+
+    /// As [`Tolerances::hit_tip`] for the tool axis, degrees.
+    fn hit_axis(&self) -> f64 {
+        self.axis / 4.0
+    }
+}
+
+/// The worst value of a figure and where it was.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Worst {
+    /// The value (0 when nothing was measured).
+    pub value: f64,
+    /// Line of the printed program (0: none).
+    pub line: u64,
+    /// Source line of the programmed block (0: unknown).
+    pub source: u32,
+}
+
+impl Worst {
+    fn note(&mut self, value: f64, line: u64, source: u32) {
+        if value > self.value || (value.is_nan() && !self.value.is_nan()) {
+            *self = Worst {
+                value,
+                line,
+                source,
+            };
+        }
+    }
+
+    fn place(&self) -> String {
+        match (self.line, self.source) {
+            (0, _) => String::new(),
+            (l, 0) => format!(" (output line {l})"),
+            (l, s) => format!(" (output line {l}, input line {s})"),
+        }
+    }
+}
+
+/// What the readback found in one run.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Figures {
+    /// Tip deviation from the programmed path, mm.
+    pub tip: Worst,
+    /// Tool-axis deviation from the programmed axis path, degrees.
+    pub axis: Worst,
+    /// Block time error against the programmed feed, relative.
+    pub time: Worst,
+    /// Valve lead error, seconds (infinite: a valve command is missing).
+    pub valve: Worst,
+    /// Material error of one block, relative.
+    pub material_block: Worst,
+    /// Material the programmed path deposits, E units.
+    pub material_programmed: f64,
+    /// Material the printed program deposits, E units.
+    pub material_printed: f64,
+    /// Smallest limit margin: mm or degrees, the axis letter, the printed line.
+    pub margin: Option<(f64, char, u64)>,
+    /// Programmed segments the printed path traced.
+    pub segments: u64,
+    /// Programmed vertices the printed path never reached.
+    pub unmatched: u64,
+    /// Source line of the first of them.
+    pub unmatched_line: u32,
+    /// Seconds the printed program takes on the controller.
+    pub seconds: f64,
+}
+
+impl Figures {
+    /// The material error of the whole file, relative (0 without material).
+    pub fn material_file(&self) -> f64 {
+        if self.material_programmed > 0.0 {
+            (self.material_printed - self.material_programmed).abs() / self.material_programmed
+        } else if self.material_printed > 0.0 {
+            f64::INFINITY
+        } else {
+            0.0
+        }
+    }
+
+    /// One note with every figure, then an error for each tolerance it violates.
+    /// `polar` adds the valve and material figures.
+    pub fn diagnostics(&self, tol: &Tolerances, polar: bool) -> Vec<Diagnostic> {
+        let mut parts = vec![
+            format!(
+                "tip {:.4} mm{} (tolerance {} mm)",
+                self.tip.value,
+                self.tip.place(),
+                tol.tip
+            ),
+            format!(
+                "tool axis {:.4}°{} (tolerance {}°)",
+                self.axis.value,
+                self.axis.place(),
+                tol.axis
+            ),
+            format!(
+                "time {:.3} %{} (tolerance {} %)",
+                self.time.value * 100.0,
+                self.time.place(),
+                tol.time * 100.0
+            ),
+        ];
+        if polar {
+            parts.push(format!(
+                "valve lead {:.1} ms{} (tolerance {} ms)",
+                self.valve.value * 1000.0,
+                self.valve.place(),
+                tol.valve_lead * 1000.0
+            ));
+            parts.push(format!(
+                "material {:.3} % per file ({:.5} of {:.5}), {:.3} % per block{} (tolerances {} %, {} %)",
+                self.material_file() * 100.0,
+                self.material_printed,
+                self.material_programmed,
+                self.material_block.value * 100.0,
+                self.material_block.place(),
+                tol.material_file * 100.0,
+                tol.material_block * 100.0
+            ));
+        }
+        if let Some((m, axis, line)) = self.margin {
+            parts.push(format!("limit margin {m:.4} ({axis}, output line {line})"));
+        }
+        let mut out = vec![Diagnostic::note(
+            "verify::report",
+            format!(
+                "verify: {} segments, {:.1} s on the controller; {}",
+                self.segments,
+                self.seconds,
+                parts.join("; ")
+            ),
+        )];
+        self.violations(tol, polar, &mut out);
+        out
+    }
+
+    fn violations(&self, tol: &Tolerances, polar: bool, out: &mut Vec<Diagnostic>) {
+        let over = |w: &Worst, limit: f64| !within(w.value, limit);
+        let mut fail = |code: &'static str, what: String, help: &str| {
+            out.push(Diagnostic::error(code, what).with_help(help.to_string()));
+        };
+        if over(&self.tip, tol.tip) {
+            fail(
+                "verify::tip",
+                format!(
+                    "the printed tip leaves the programmed path by {:.4} mm{}, beyond the tolerance {} mm",
+                    self.tip.value,
+                    self.tip.place(),
+                    tol.tip
+                ),
+                "the machine passes' output does not hold their tolerance on the printed numbers; tighten the pass (densify tip_tolerance, polar-ik tolerance) or set [verify] tip",
+            );
+        }
+        if over(&self.axis, tol.axis) {
+            fail(
+                "verify::axis",
+                format!(
+                    "the printed tool axis leaves the programmed one by {:.4}°{}, beyond the tolerance {}°",
+                    self.axis.value,
+                    self.axis.place(),
+                    tol.axis
+                ),
+                "tighten densify's axis_tolerance, or set [verify] axis",
+            );
+        }
+        if over(&self.time, tol.time) {
+            fail(
+                "verify::time",
+                format!(
+                    "a block takes {:.2} % more or less time on the controller than its programmed feed gives{}, beyond {} %",
+                    self.time.value * 100.0,
+                    self.time.place(),
+                    tol.time * 100.0
+                ),
+                "the printed F, the controller's minimum speed or its G0 rule do not give the programmed time; check [machine.controller] / [polar.controller] (min_speed, max_feed, flavour)",
+            );
+        }
+        if polar && over(&self.valve, tol.valve_lead) {
+            fail(
+                "verify::valve",
+                format!(
+                    "a valve command takes effect {:.1} ms away from its extrusion start or end{}, beyond {} ms",
+                    self.valve.value * 1000.0,
+                    self.valve.place(),
+                    tol.valve_lead * 1000.0
+                ),
+                "the valve look-ahead timed its commands with another motion time than the controller's; check the controller's caps and G0 rule",
+            );
+        }
+        if polar && !within(self.material_file(), tol.material_file) {
+            fail(
+                "verify::material",
+                format!(
+                    "the printed program deposits {:.5} where {:.5} was programmed ({:.2} %), beyond {} %",
+                    self.material_printed,
+                    self.material_programmed,
+                    self.material_file() * 100.0,
+                    tol.material_file * 100.0
+                ),
+                "the screw speeds were computed with another motion time than the controller's",
+            );
+        }
+        if polar && over(&self.material_block, tol.material_block) {
+            fail(
+                "verify::material-block",
+                format!(
+                    "a block deposits {:.2} % more or less than programmed{}, beyond {} %",
+                    self.material_block.value * 100.0,
+                    self.material_block.place(),
+                    tol.material_block * 100.0
+                ),
+                "the screw speeds were computed with another motion time than the controller's",
+            );
+        }
+        if let Some((m, axis, line)) = self.margin.filter(|m| m.0 < 0.0) {
+            fail(
+                "verify::limit",
+                format!("{axis} is {:.4} beyond its limit (output line {line})", -m),
+                "the printed program leaves the machine's travel; move the part or change the limits",
+            );
+        }
+        if self.unmatched > 0 {
+            fail(
+                "verify::unmatched",
+                format!(
+                    "the printed program never reaches {} programmed point{} (the first from input line {})",
+                    self.unmatched,
+                    if self.unmatched == 1 { "" } else { "s" },
+                    self.unmatched_line
+                ),
+                "the printed path ends early or leaves the programmed one",
+            );
+        }
+    }
+}
+
+/// Whether `value` is within `limit` (a value that is not a number is not).
+fn within(value: f64, limit: f64) -> bool {
+    value <= limit * (1.0 + 1e-9)
+}
+
+/// Reads the printed text as it is written (bytes, split into lines here) and checks it.
+pub struct Verifier {
+    reader: Reader,
+    checker: Checker,
+    tol: Tolerances,
+    polar: bool,
+    /// Block times, valve leads and material are judged.
+    timed: bool,
+    partial: Vec<u8>,
+    line: u64,
+}
+
+impl Verifier {
+    /// A verifier of the text `reader` reads against `checker`'s programmed path.
+    pub fn new(reader: Reader, checker: Checker, tol: Tolerances, polar: bool) -> Verifier {
+        Verifier {
+            reader,
+            checker,
+            tol,
+            polar,
+            timed: true,
+            partial: Vec::new(),
+            line: 0,
+        }
+    }
+
+    /// The same verifier reporting but not judging block times, valve leads and
+    /// material (for a run timed with acceleration, which this reader does not model).
+    pub fn without_times(mut self) -> Verifier {
+        self.timed = false;
+        self
+    }
+
+    /// Takes printed bytes.
+    pub fn bytes(&mut self, mut buf: &[u8]) {
+        while let Some(nl) = buf.iter().position(|&b| b == b'\n') {
+            if self.partial.is_empty() {
+                self.take_line(&buf[..nl]);
+            } else {
+                let mut whole = std::mem::take(&mut self.partial);
+                whole.extend_from_slice(&buf[..nl]);
+                self.take_line(&whole);
+                whole.clear();
+                self.partial = whole;
+            }
+            buf = &buf[nl + 1..];
+        }
+        self.partial.extend_from_slice(buf);
+    }
+
+    fn take_line(&mut self, bytes: &[u8]) {
+        self.line += 1;
+        let text = String::from_utf8_lossy(bytes);
+        if let Some(e) = self.reader.line(&text) {
+            self.checker.event(&e, self.line);
+        }
+    }
+
+    /// The report: one note, and an error for each violated tolerance.
+    pub fn finish(mut self) -> (Figures, Vec<Diagnostic>) {
+        if !self.partial.is_empty() {
+            let rest = std::mem::take(&mut self.partial);
+            self.take_line(&rest);
+        }
+        let figures = self.checker.finish();
+        let mut tol = self.tol;
+        if !self.timed {
+            (tol.time, tol.valve_lead) = (f64::INFINITY, f64::INFINITY);
+            (tol.material_file, tol.material_block) = (f64::INFINITY, f64::INFINITY);
+        }
+        let diags = figures.diagnostics(&tol, self.polar);
+        (figures, diags)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ir::Axis;
+    use crate::machine::{Controller, Flavour};
+    use crate::motion::Model;
+    use std::collections::VecDeque;
+    use std::sync::{Arc, Mutex};
+
+    fn vertex(x: f64, feed: f64, line: u32) -> Vertex {
+        Vertex {
+            tip: [x, 0.0, 0.0],
+            axis: [0.0, 0.0, 1.0],
+            feed,
+            rapid: feed == 0.0,
+            fresh: line == 1,
+            material: 0.0,
+            arc: None,
+            partial: false,
+            line,
+        }
+    }
+
+    /// A cut printed at half its programmed feed, and a printed point 0.02 mm off the
+    /// line: both figures, with their lines, and an error each.
+    #[test]
+    fn figures_of_a_wrong_program() {
+        let queue: Queue = Arc::new(Mutex::new(VecDeque::from([
+            vertex(0.0, 0.0, 1),
+            vertex(10.0, 600.0, 2),
+            vertex(20.0, 600.0, 3),
+        ])));
+        let c = Controller {
+            flavour: Some(Flavour::Linuxcnc),
+            min_speed: 0.0,
+            ..Controller::default()
+        };
+        let model = Model::new(&c);
+        let tol = Tolerances::new(&Settings::default(), 0.01, 0.05);
+        let reader = Reader::new(model.clone(), c.flavour, None);
+        let checker = Checker::new(Kinematics::Cartesian, &model, tol, None, queue);
+        let mut v = Verifier::new(reader, checker, tol, false);
+        v.bytes(b"G0 X0 Y0 Z0\nG1 X10 F300\nG1 X15 Y0.02 F600\nG1 X20 Y0");
+        let (f, diags) = v.finish();
+        assert!((f.time.value - 1.0).abs() < 1e-9, "{f:?}");
+        assert_eq!((f.time.line, f.time.source), (2, 2));
+        assert!((f.tip.value - 0.02).abs() < 1e-9, "{f:?}");
+        assert_eq!((f.tip.line, f.tip.source), (3, 3));
+        assert_eq!(f.segments, 3);
+        let codes: Vec<_> = diags.iter().map(|d| d.code).collect();
+        assert_eq!(codes, ["verify::report", "verify::tip", "verify::time"]);
+        assert!(Axis::X.index() == 0);
+    }
+}

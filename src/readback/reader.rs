@@ -1,0 +1,392 @@
+//! The printed program read line by line the way the controller reads it: its own modal
+//! state (G0–G3, G90/G91, G20/G21, G93/G94, G17–G19, modal F, M82/M83), dwells in the
+//! flavour's unit, the polar printer's valve and screw commands, and every move timed by
+//! the controller's rules ([`Model`] at constant velocity: the flavour's `G0` rule, the
+//! minimum speed, the per-axis caps).
+
+use crate::ir::{Arc, Axis, AxisSet, Feed, FeedMode, Joints, MotionKind, Plane};
+use crate::machine::Flavour;
+use crate::machine::polar::Polar;
+use crate::motion::{Model, Timing};
+use crate::num::lexer::{Tok, tokens};
+use crate::num::parse_decimal;
+
+/// What one printed line does, as far as the verification needs it.
+// Returned for each printed line and taken at once, never stored: boxing the move would
+// cost an allocation per block.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Event {
+    /// A move, with the seconds the controller takes for it.
+    Move(Move),
+    /// A dwell, seconds.
+    Dwell(f64),
+    /// The valve command: `true` opens, `false` closes.
+    Valve(bool),
+    /// The screw's speed command, rev/min.
+    Screw(f64),
+    /// The axes whose position the controller no longer knows from the program (homing).
+    Lost(AxisSet),
+}
+
+/// One printed move.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Move {
+    /// Joints before it.
+    pub from: Joints,
+    /// Joints after it.
+    pub to: Joints,
+    /// `G0`.
+    pub rapid: bool,
+    /// The arc of a `G2`/`G3` (absolute centre).
+    pub arc: Option<Arc>,
+    /// Seconds the controller takes.
+    pub seconds: f64,
+}
+
+/// The seconds one unit of `G4 P` stands for on `flavour`'s controller.
+///
+/// RepRapFirmware, Marlin and Klipper read `G4 P` as milliseconds, Grbl and LinuxCNC as
+/// seconds. This is the one place the reader assumes a flavour's dwell unit: when
+/// `machine::Flavour` says it itself, this function asks it.
+pub fn dwell_p_unit(flavour: Option<Flavour>) -> f64 {
+    match flavour {
+        Some(Flavour::RrfFdm | Flavour::RrfCnc | Flavour::Marlin | Flavour::Klipper) => 0.001,
+        Some(Flavour::Grbl | Flavour::Linuxcnc) | None => 1.0,
+    }
+}
+
+/// A machine command of the polar printer, as words (upper case, blanks dropped).
+fn command_key(text: &str) -> String {
+    text.chars()
+        .filter(|c| !c.is_whitespace())
+        .map(|c| c.to_ascii_uppercase())
+        .collect()
+}
+
+/// Reads printed lines and keeps the controller's state.
+#[derive(Debug, Clone)]
+pub struct Reader {
+    model: Model,
+    dwell_unit: f64,
+    pos: Joints,
+    absolute: bool,
+    relative_e: bool,
+    inch: bool,
+    inverse_time: bool,
+    feed: Option<f64>,
+    /// 0, 1, 2, 3: the modal motion.
+    motion: u8,
+    plane: Plane,
+    valve_open: String,
+    valve_close: String,
+    /// The screw command up to its `{rpm}` (upper case, no blanks).
+    screw: String,
+    /// Scratch for a line's command key.
+    key: String,
+}
+
+impl Reader {
+    /// A reader for a controller timed by `model` (its constant-velocity form) on
+    /// `flavour`, knowing the commands of `polar` when there is one.
+    pub fn new(model: Model, flavour: Option<Flavour>, polar: Option<&Polar>) -> Reader {
+        let (valve_open, valve_close, screw) = match polar {
+            Some(p) => (
+                command_key(&p.valve.open_command),
+                command_key(&p.valve.close_command),
+                command_key(p.screw.rpm_command.split("{rpm}").next().unwrap_or("")),
+            ),
+            None => (String::new(), String::new(), String::new()),
+        };
+        Reader {
+            model: model.with_timing(Timing::ConstantVelocity),
+            dwell_unit: dwell_p_unit(flavour),
+            pos: Joints::default(),
+            absolute: true,
+            relative_e: false,
+            inch: false,
+            inverse_time: false,
+            feed: None,
+            motion: 0,
+            plane: Plane::XY,
+            valve_open,
+            valve_close,
+            screw,
+            key: String::new(),
+        }
+    }
+
+    /// The position after the lines read so far.
+    pub fn pos(&self) -> &Joints {
+        &self.pos
+    }
+
+    /// Reads one line (without its terminator).
+    pub fn line(&mut self, line: &str) -> Option<Event> {
+        let code = line.split(';').next().unwrap_or("");
+        if !self.valve_open.is_empty()
+            && let Some(e) = self.polar_command(code)
+        {
+            return Some(e);
+        }
+        let mut words = Words::default();
+        for (_, tok, _) in tokens(code) {
+            if let Tok::Word(w) = tok {
+                self.word(w, &mut words);
+            }
+        }
+        self.apply(words)
+    }
+
+    fn polar_command(&mut self, code: &str) -> Option<Event> {
+        self.key.clear();
+        self.key.extend(
+            code.chars()
+                .filter(|c| !c.is_whitespace())
+                .map(|c| c.to_ascii_uppercase()),
+        );
+        if self.key.is_empty() {
+            return None;
+        }
+        if self.key == self.valve_open {
+            return Some(Event::Valve(true));
+        }
+        if self.key == self.valve_close {
+            return Some(Event::Valve(false));
+        }
+        if !self.screw.is_empty() && self.key.starts_with(&self.screw) {
+            return parse_decimal(&self.key[self.screw.len()..]).map(Event::Screw);
+        }
+        None
+    }
+
+    /// Notes one word of a line.
+    fn word(&mut self, w: &str, words: &mut Words) {
+        let letter = w.as_bytes()[0].to_ascii_uppercase();
+        let Some(value) = parse_decimal(w[1..].trim_start()) else {
+            return;
+        };
+        match letter {
+            b'G' => match (value * 10.0).round() as i64 {
+                0 => words.motion = Some(0),
+                10 => words.motion = Some(1),
+                20 => words.motion = Some(2),
+                30 => words.motion = Some(3),
+                40 => words.dwell = true,
+                170 => self.plane = Plane::XY,
+                180 => self.plane = Plane::ZX,
+                190 => self.plane = Plane::YZ,
+                200 => self.inch = true,
+                210 => self.inch = false,
+                280 => words.home = true,
+                530 => words.machine = true,
+                900 => self.absolute = true,
+                910 => self.absolute = false,
+                920 => words.set = true,
+                930 => self.inverse_time = true,
+                940 => self.inverse_time = false,
+                _ => {}
+            },
+            b'M' => match value as i64 {
+                82 => self.relative_e = false,
+                83 => self.relative_e = true,
+                _ => {}
+            },
+            b'F' => words.f = Some(value),
+            b'P' => words.p = Some(value),
+            b'S' => words.s = Some(value),
+            b'I' => words.ijk[0] = Some(value),
+            b'J' => words.ijk[1] = Some(value),
+            b'K' => words.ijk[2] = Some(value),
+            _ => {
+                if let Some(axis) = Axis::from_letter(letter as char) {
+                    words.axes[axis.index()] = Some(value);
+                    words.any_axis = true;
+                }
+            }
+        }
+    }
+
+    fn apply(&mut self, w: Words) -> Option<Event> {
+        let scale = if self.inch { 25.4 } else { 1.0 };
+        if let Some(f) = w.f {
+            self.feed = Some(if self.inverse_time { f } else { f * scale });
+        }
+        if w.dwell {
+            let seconds = match (w.p, w.s) {
+                (Some(p), _) => p * self.dwell_unit,
+                (None, Some(s)) => s,
+                _ => 0.0,
+            };
+            return Some(Event::Dwell(seconds));
+        }
+        if w.home {
+            let mut lost = AxisSet::default();
+            for a in Axis::ALL {
+                if w.axes[a.index()].is_some() || !w.any_axis {
+                    lost.insert(a);
+                }
+            }
+            self.pos.forget(lost);
+            return Some(Event::Lost(lost));
+        }
+        if w.set || w.machine {
+            // G92 declares the position; G53 moves in machine coordinates the reader
+            // cannot map: both leave the written axes where the controller says.
+            for a in Axis::ALL {
+                if let Some(v) = w.axes[a.index()] {
+                    self.pos.set(
+                        a,
+                        if a.is_rotary() || a == Axis::E {
+                            v
+                        } else {
+                            v * scale
+                        },
+                    );
+                }
+            }
+            return None;
+        }
+        if let Some(m) = w.motion {
+            self.motion = m;
+        }
+        if !w.any_axis {
+            return None;
+        }
+        let from = self.pos;
+        let mut to = from;
+        for a in Axis::ALL {
+            let Some(v) = w.axes[a.index()] else { continue };
+            let v = if a.is_rotary() || a == Axis::E {
+                v
+            } else {
+                v * scale
+            };
+            let relative = if a == Axis::E {
+                self.relative_e || !self.absolute
+            } else {
+                !self.absolute
+            };
+            let base = from.get(a).unwrap_or(0.0);
+            to.set(a, if relative { base + v } else { v });
+        }
+        self.pos = to;
+        Some(Event::Move(self.timed(from, to, &w, scale)))
+    }
+
+    fn timed(&self, from: Joints, to: Joints, w: &Words, scale: f64) -> Move {
+        let arc = match self.motion {
+            2 | 3 => {
+                let mut center = nalgebra::Vector3::zeros();
+                let ijk = [w.ijk[0], w.ijk[1], w.ijk[2]];
+                for (k, a) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
+                    center[k] = from.get(a).unwrap_or(0.0) + ijk[k].unwrap_or(0.0) * scale;
+                }
+                Some(Arc {
+                    clockwise: self.motion == 2,
+                    plane: self.plane,
+                    center,
+                    extra_turns: 0,
+                })
+            }
+            _ => None,
+        };
+        let kind = match (self.motion, arc) {
+            (0, _) => MotionKind::Rapid,
+            (_, Some(a)) => MotionKind::Arc(a),
+            _ => MotionKind::Linear,
+        };
+        let feed = Feed {
+            mode: if self.inverse_time {
+                FeedMode::InverseTime
+            } else {
+                FeedMode::PerMinute
+            },
+            rate: self.feed,
+        };
+        let seg = self.model.between(&from, &to, kind, &feed);
+        let seconds = if seg.moves() {
+            seg.length / seg.v_max
+        } else {
+            0.0
+        };
+        Move {
+            from,
+            to,
+            rapid: self.motion == 0,
+            arc,
+            seconds,
+        }
+    }
+}
+
+/// The words of one line.
+#[derive(Debug, Default, Clone, Copy)]
+struct Words {
+    motion: Option<u8>,
+    dwell: bool,
+    home: bool,
+    set: bool,
+    machine: bool,
+    any_axis: bool,
+    f: Option<f64>,
+    p: Option<f64>,
+    s: Option<f64>,
+    ijk: [Option<f64>; 3],
+    axes: [Option<f64>; crate::ir::AXIS_COUNT],
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::machine::Controller;
+
+    fn reader(flavour: Flavour) -> Reader {
+        let c = Controller {
+            flavour: Some(flavour),
+            min_speed: 0.0,
+            ..Controller::default()
+        };
+        Reader::new(Model::new(&c), Some(flavour), None)
+    }
+
+    fn seconds(r: &mut Reader, line: &str) -> f64 {
+        match r.line(line) {
+            Some(Event::Move(m)) => m.seconds,
+            Some(Event::Dwell(s)) => s,
+            e => panic!("{line}: {e:?}"),
+        }
+    }
+
+    /// A G0 without F runs at the modal F of the last G1 on an FDM firmware.
+    #[test]
+    fn rapid_at_modal_feed_on_fdm() {
+        let mut r = reader(Flavour::RrfFdm);
+        r.line("G0 X0 Y0");
+        assert!((seconds(&mut r, "G1 X10 F600") - 1.0).abs() < 1e-12);
+        assert!((seconds(&mut r, "G0 X30") - 2.0).abs() < 1e-12);
+    }
+
+    /// Relative moves, inches and dwell units per flavour.
+    #[test]
+    fn modes_and_dwells() {
+        let mut r = reader(Flavour::RrfCnc);
+        r.line("G0 X0");
+        r.line("G91 G20");
+        assert!((seconds(&mut r, "G1 X1 F60") - 1.0).abs() < 1e-12);
+        assert!((r.pos().get(Axis::X).unwrap() - 25.4).abs() < 1e-12);
+        assert!((seconds(&mut r, "G4 P250") - 0.25).abs() < 1e-12);
+        let mut g = reader(Flavour::Grbl);
+        assert!((seconds(&mut g, "G4 P0.5") - 0.5).abs() < 1e-12);
+    }
+
+    /// The polar printer's commands are recognised as written in the preset.
+    #[test]
+    fn polar_commands() {
+        let p = Polar::default();
+        let mut r = Reader::new(Model::default(), Some(Flavour::RrfFdm), Some(&p));
+        assert_eq!(r.line("M42 P0 S1 ; open"), Some(Event::Valve(true)));
+        assert_eq!(r.line("m42 p0 s0"), Some(Event::Valve(false)));
+        assert_eq!(r.line("M3 S48.5"), Some(Event::Screw(48.5)));
+    }
+}
