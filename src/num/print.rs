@@ -37,33 +37,43 @@ impl Default for Decimals {
 /// may cost (0.1 %, a tenth of the 1 % a block's time must hold).
 pub const FEED_RESOLUTION: f64 = 1e-3;
 
+/// Significant digits an F is printed with at least: half a unit in the fourth digit is
+/// at most 0.05 % of the value, half of [`FEED_RESOLUTION`].
+pub const FEED_SIGNIFICANT: u8 = 4;
+
 /// Most decimals an F gets: a 32-bit float firmware (RepRapFirmware, Grbl, Marlin) keeps
 /// about 7 significant digits, so `F0.012345` is still read as printed.
 pub const FEED_MAX_DECIMALS: u8 = 6;
 
 impl Decimals {
-    /// The decimals F `value` is printed with: at least `feed`, and more (up to
-    /// [`FEED_MAX_DECIMALS`]) while the printed value is more than [`FEED_RESOLUTION`]
-    /// off. A slow F (a rotary move's XYZ speed, a plunge) keeps its significant digits,
-    /// where a fixed 2 decimals print 0.0628 as `F0.06`, 4.5 % fast.
+    /// The decimals F `value` is printed with: at least `feed`, and as many more (up to
+    /// [`FEED_MAX_DECIMALS`]) as give it [`FEED_SIGNIFICANT`] significant digits, which
+    /// hold it within half of [`FEED_RESOLUTION`]. A slow F (a rotary move's XYZ speed, a
+    /// plunge) keeps its digits, where a fixed 2 decimals print 0.0628 as `F0.06`, 4.5 %
+    /// fast. The places follow the value's magnitude, not its rounding error, so a
+    /// printed F prints again as itself (`F23.88`, not `F23.9` on a second run).
     ///
     /// ```
     /// use ncpost::num::print::Decimals;
     /// let d = Decimals { feed: 2, ..Decimals::default() };
     /// assert_eq!(d.feed_decimals(1200.0), 2);
     /// assert_eq!(d.feed_decimals(16.0812), 2);
-    /// assert_eq!(d.feed_decimals(0.0628), 4);
-    /// assert_eq!(d.printed_feed(0.06283), Some(0.0628));
+    /// assert_eq!(d.feed_decimals(0.0628), 5);
+    /// assert_eq!(d.printed_feed(0.062834), Some(0.06283));
+    /// let one = Decimals { feed: 1, ..Decimals::default() };
+    /// let p = one.printed_feed(23.875).unwrap();
+    /// assert_eq!(one.printed_feed(p), Some(p));
     /// ```
     pub fn feed_decimals(&self, value: f64) -> u8 {
-        let mut places = self.feed;
-        while places < FEED_MAX_DECIMALS {
-            match printed(value, places) {
-                Some(p) if (p - value).abs() > FEED_RESOLUTION * value.abs() => places += 1,
-                _ => break,
-            }
+        if !value.is_finite() || value == 0.0 {
+            return self.feed;
         }
-        places
+        let magnitude = value.abs().log10().floor() as i32;
+        let places = i32::from(FEED_SIGNIFICANT) - 1 - magnitude;
+        places.clamp(
+            i32::from(self.feed),
+            i32::from(FEED_MAX_DECIMALS.max(self.feed)),
+        ) as u8
     }
 
     /// F `value` as the controller reads it: printed at [`Decimals::feed_decimals`];
