@@ -32,6 +32,44 @@ pub trait Frontend {
     fn bytes_read(&self) -> u64;
 }
 
+/// Lines a line-based frontend read, for the check that an input holds something.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LineCounts {
+    /// Lines read.
+    pub lines: u64,
+    /// A line held more than blanks.
+    pub saw_text: bool,
+    /// Lines refused before lowering (too long, not UTF-8).
+    pub bad_lines: u64,
+}
+
+impl LineCounts {
+    /// The error `code` for an input with nothing in it (`None` when it has a line of
+    /// text or a refused line, which has its own error); `unit` is what it should hold.
+    ///
+    /// ```
+    /// use ncpost::front::LineCounts;
+    /// let blank = LineCounts { lines: 3, saw_text: false, bad_lines: 0 };
+    /// let d = blank.empty_error("gcode::empty", "G-code line or comment").unwrap();
+    /// assert_eq!(d.message, "the input has only blank lines");
+    /// assert!(LineCounts { saw_text: true, ..blank }.empty_error("gcode::empty", "").is_none());
+    /// ```
+    pub fn empty_error(&self, code: &'static str, unit: &str) -> Option<Diagnostic> {
+        if self.lines > 0 && (self.saw_text || self.bad_lines > 0) {
+            return None;
+        }
+        let what = if self.lines == 0 {
+            "the input is empty"
+        } else {
+            "the input has only blank lines"
+        };
+        Some(
+            Diagnostic::error(code, what)
+                .with_help(format!("give a file with at least one {unit}")),
+        )
+    }
+}
+
 /// A line as read: its text, or why it has none.
 #[derive(Debug)]
 pub enum RawLine<'a> {

@@ -186,17 +186,7 @@ impl<R: BufRead> Parser<R> {
             }
             self.done = true;
             let counts = self.source.counts;
-            if counts.lines == 0 || (!counts.saw_text && counts.bad_lines == 0) {
-                let what = if counts.lines == 0 {
-                    "the input is empty"
-                } else {
-                    "the input has only blank lines"
-                };
-                diags.push(
-                    Diagnostic::error("cl::empty", what)
-                        .with_help("give a file with at least one CL statement or comment"),
-                );
-            }
+            diags.extend(counts.empty_error("cl::empty", "CL statement or comment"));
             self.lower.finish(diags);
         }
     }

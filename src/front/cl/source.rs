@@ -5,6 +5,7 @@ use std::collections::VecDeque;
 use std::io::BufRead;
 
 use crate::diag::Diagnostic;
+use crate::front::LineCounts;
 use crate::front::{LineReader, RawLine};
 use crate::ir::Span;
 
@@ -136,17 +137,6 @@ enum Held {
     NotUtf8 { valid_up_to: usize, lossy: String },
 }
 
-/// Counters kept while reading.
-#[derive(Debug, Default, Clone, Copy)]
-pub(super) struct Counts {
-    /// Lines read.
-    pub lines: u64,
-    /// Lines rejected (too long, not UTF-8).
-    pub bad_lines: u64,
-    /// A non-blank line was read.
-    pub saw_text: bool,
-}
-
 /// Reads statements from lines.
 pub(super) struct Source<R> {
     reader: LineReader<R>,
@@ -154,7 +144,7 @@ pub(super) struct Source<R> {
     probed: Option<Probe>,
     max_line_len: usize,
     /// What was read so far.
-    pub counts: Counts,
+    pub counts: LineCounts,
     /// A statement is open: its last line ended with `$`.
     open: bool,
     done: bool,
@@ -167,7 +157,7 @@ impl<R: BufRead> Source<R> {
             held: VecDeque::new(),
             probed: None,
             max_line_len,
-            counts: Counts::default(),
+            counts: LineCounts::default(),
             open: false,
             done: false,
         }
@@ -295,7 +285,7 @@ impl<R: BufRead> Source<R> {
 /// Adds one line to the statement being read; returns whether the statement is complete.
 #[allow(clippy::too_many_arguments)]
 fn take_line(
-    counts: &mut Counts,
+    counts: &mut LineCounts,
     open: &mut bool,
     raw: RawLine<'_>,
     span: Span,

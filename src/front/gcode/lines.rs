@@ -14,7 +14,7 @@ use super::Options;
 use super::lexer::{self, Kind, Spanned};
 use super::lower::{self, Lowerer};
 use crate::diag::Diagnostic;
-use crate::front::{LineReader, RawLine, content_len};
+use crate::front::{LineCounts, LineReader, RawLine, content_len};
 use crate::ir::{Block, Span};
 
 /// Lines read and tokenised, waiting to be lowered.
@@ -322,17 +322,12 @@ impl Lowering {
     /// The end of the input: an input with no G-code is an error; the lowerer reports
     /// what the program left open.
     fn finish(&mut self, diags: &mut Vec<Diagnostic>) {
-        if self.lines == 0 || (!self.lower.saw_text() && self.bad_lines == 0) {
-            let what = if self.lines == 0 {
-                "the input is empty"
-            } else {
-                "the input has only blank lines"
-            };
-            diags.push(
-                Diagnostic::error("gcode::empty", what)
-                    .with_help("give a file with at least one G-code line or comment"),
-            );
-        }
+        let counts = LineCounts {
+            lines: self.lines,
+            saw_text: self.lower.saw_text(),
+            bad_lines: self.bad_lines,
+        };
+        diags.extend(counts.empty_error("gcode::empty", "G-code line or comment"));
         self.lower.finish(diags);
     }
 }
