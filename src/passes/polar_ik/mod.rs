@@ -79,6 +79,7 @@
 //! only arcs are cut into chords, so later passes (extrusion rate, valve timing) see straight
 //! segments.
 
+mod arcs;
 mod geometry;
 mod moves;
 
@@ -90,6 +91,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Span};
 use crate::machine::FeedRule;
 use crate::machine::polar::{OriginPolicy, Polar};
+use crate::num::print::Decimals;
 
 pub use geometry::{MAX_ARC_CHORDS, Piece, PolarPoint, arc_points, error_bound, plan};
 
@@ -172,7 +174,7 @@ pub const INFO: PassInfo = PassInfo {
                 ));
             }
         };
-        Ok(Box::new(PolarIk::new(polar, options)?))
+        Ok(Box::new(PolarIk::new(polar, options)?.printed_with(ctx.decimals)?))
     },
     defaults: || super::to_toml(&Options::default()),
 };
@@ -195,6 +197,8 @@ pub struct PolarIk {
     node: Option<PolarPoint>,
     /// `min(ω_max, 1.24 √α_max)`, 1/s.
     cap_rate: f64,
+    /// The tolerance the pieces get: what the print rounding of their ends leaves.
+    tolerance: f64,
 }
 
 impl PolarIk {
@@ -213,11 +217,41 @@ impl PolarIk {
         Ok(PolarIk {
             policy: checked.origin_policy(),
             cap_rate: omega.min(ALPHA_FACTOR * alpha.sqrt()),
+            tolerance: options.tolerance,
             polar,
             options,
             pos: Joints::default(),
             node: None,
         })
+    }
+
+    /// The same pass for a backend that prints with `decimals`: the tolerance holds on
+    /// the printed positions. Printing rounds r and θ by up to half a unit of their last
+    /// decimal, which moves the nozzle by up to the r rounding plus `r_max` times the θ
+    /// rounding (radians), all along a piece (the rounding of its ends is interpolated
+    /// like the joints); under `kinematics = "controller"` X, Y and Z are printed, by up to
+    /// `√3` times their rounding. The pieces get the tolerance less that; an error when
+    /// nothing is left.
+    pub fn printed_with(mut self, decimals: Option<Decimals>) -> Result<PolarIk, Diagnostic> {
+        let Some(d) = decimals else {
+            return Ok(self);
+        };
+        let half = |axis: Axis| 0.5 * 10f64.powi(-i32::from(d.axis(axis)));
+        let rounding = match self.options.kinematics {
+            Kinematics::Post => {
+                half(self.polar.r_axis) + self.polar.r_max * half(self.polar.theta_axis).to_radians()
+            }
+            Kinematics::Controller => half(Axis::X).max(half(Axis::Y)).max(half(Axis::Z)) * 3f64.sqrt(),
+        };
+        self.tolerance = self.options.tolerance - rounding;
+        if self.tolerance <= 0.0 {
+            return Err(Diagnostic::settings(format!(
+                "polar-ik tolerance {} mm is finer than the printed positions can hold \
+                 ({rounding:.6} mm): raise the tolerance or print more decimals",
+                self.options.tolerance
+            )));
+        }
+        Ok(self)
     }
 
     fn xy(&self, j: &Joints) -> Option<Vector2<f64>> {

@@ -74,7 +74,7 @@ impl PolarIk {
             let (a1, a2, _) = arc.plane.axes();
             if self.pos.known.contains(a1) && self.pos.known.contains(a2) {
                 let Some(points) =
-                    self.chords_or_error(&block, &to, &arc, self.options.tolerance, out)
+                    self.chords_or_error(&block, &to, &arc, self.tolerance, out)
                 else {
                     return;
                 };
@@ -143,10 +143,17 @@ impl PolarIk {
             self.first_point(block, m, &to, p1, out);
             return;
         };
+        if let MotionKind::Arc(arc) = m.kind
+            && let Some(shape) = self.direct_arc(&from, &to, &arc)
+        {
+            self.node = Some(self.arc_move(&block, &m, &shape, node, out));
+            self.pos = to;
+            return;
+        }
         let chords;
         let points: &[Joints] = match m.kind {
             MotionKind::Arc(arc) => {
-                let tolerance = ARC_SHARE * self.options.tolerance;
+                let tolerance = ARC_SHARE * self.tolerance;
                 let Some(points) = self.chords_or_error(&block, &to, &arc, tolerance, out) else {
                     return;
                 };
@@ -286,8 +293,8 @@ impl PolarIk {
             cart_len: xy_len.hypot(dz),
             speed,
             tolerance: match m.kind {
-                MotionKind::Arc(_) => ARC_SHARE * self.options.tolerance,
-                _ => self.options.tolerance,
+                MotionKind::Arc(_) => ARC_SHARE * self.tolerance,
+                _ => self.tolerance,
             },
         };
         let pieces = self.pieces_of(&line, node, rapid, block, out);
@@ -374,18 +381,23 @@ impl PolarIk {
             &mut pieces,
         );
         if deep {
-            out.diag(
-                Diagnostic::warning(
-                    "polar-ik::depth",
-                    format!(
-                        "a piece of this move stays beyond tolerance: pieces would have to be shorter than 2^-{} of the move",
-                        self.options.max_depth
-                    ),
-                )
-                .at_span(block.span),
-            );
+            self.warn_depth(block, out);
         }
         pieces
+    }
+
+    /// The warning for a move that keeps a piece beyond tolerance (`max_depth`).
+    pub(super) fn warn_depth(&self, block: &Block, out: &mut Output<'_>) {
+        out.diag(
+            Diagnostic::warning(
+                "polar-ik::depth",
+                format!(
+                    "a piece of this move stays beyond tolerance: pieces would have to be shorter than 2^-{} of the move",
+                    self.options.max_depth
+                ),
+            )
+            .at_span(block.span),
+        );
     }
 
     /// Seconds the piece `piece` of `line` (after parameter `prev_s`, polar position
@@ -447,7 +459,7 @@ fn split_time_feed(feed: &Feed, a: &Joints, b: &Joints, total: f64) -> Feed {
 }
 
 /// Distance from the centre to the segment `a`–`b`.
-fn segment_distance(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+pub(super) fn segment_distance(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
     let d = b - a;
     let len2 = d.norm_squared();
     if len2 == 0.0 {
