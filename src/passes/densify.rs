@@ -587,11 +587,22 @@ impl Densify {
         let mut deep = false;
         let mut cur = (0.0, a.clone());
         let mut last_len: Option<f64> = None;
-        while !self.within(&cur.1, b) {
+        let mut fits_rest = self.within(a, b);
+        while !fits_rest {
             let (s, node, fits) = self.longest(a, b, &arc, &cur, last_len, min_step);
             deep |= !fits;
             if s >= 1.0 {
                 break;
+            }
+            fits_rest = self.within(&node, b);
+            if fits_rest && fits {
+                // The last two pieces share the rest evenly, rather than the longest
+                // piece and a sliver after it.
+                let even = self.node_on(a, b, &arc, 0.5 * (cur.0 + 1.0));
+                if self.within(&cur.1, &even) && self.within(&even, b) {
+                    piece(motion, span, &even, out);
+                    break;
+                }
             }
             piece(motion, span, &node, out);
             last_len = Some(s - cur.0);

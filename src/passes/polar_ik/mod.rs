@@ -68,11 +68,24 @@
 //! # Other axes and blocks
 //! Z, E and every other axis are interpolated along each split move in proportion to its
 //! XY parameter (equal to the length fraction), the last piece ending at the exact target,
-//! so the total E is unchanged. Arcs (G2/G3, any plane, helical, extra turns) are first
-//! cut into chords within half the `tolerance` of the arc, and the polar path is then
-//! held within the other half of the chords: within `tolerance` of the arc in all. `center` is the input XY point that sits on the table's
-//! axis. G92 offsets on X or Y are dropped with a warning (the table centre is the
-//! origin); commands that make X or Y unknown make r and θ unknown.
+//! so the total E is unchanged. Arcs in the XY plane (G17; helical, spirals and extra
+//! turns too) are cut straight into polar pieces whose ends lie on the arc, each the
+//! longest whose joint-linear path stays within `tolerance` of the arc itself (`arcs`:
+//! a proof by a bound of the radial gap's second derivative with samples, then doubling
+//! and bisection on the piece's end). Arcs in another plane, and the rare arc that
+//! passes within 0.001 mm of the table's centre (where θ is undefined), are first cut
+//! into chords within half the `tolerance`, the polar path then held within the other
+//! half of the chords. `center` is the input XY point that sits on the table's axis.
+//! G92 offsets on X or Y are dropped with a warning (the table centre is the origin);
+//! commands that make X or Y unknown make r and θ unknown. The input position is followed
+//! with [`crate::ir::Tracker`], as in every pass: a G92 that declares an unknown axis (E0
+//! at the start of a print) makes it known, so the next move's pieces share its E.
+//!
+//! # The printed numbers
+//! The tolerance holds on r and θ as printed: the backend rounds them to half a unit of
+//! their last decimal, which moves the nozzle by up to the r rounding plus `r_max` times
+//! the θ rounding in radians (0.00018 mm at the preset's 4 decimals), so the pieces get
+//! the tolerance less that.
 //!
 //! `kinematics = "controller"` is for firmware that does polar kinematics itself
 //! (RepRapFirmware `M669 K7`, Klipper `kinematics: polar`, Marlin `POLAR`): XY are kept and
@@ -88,7 +101,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Span};
+use crate::ir::{Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Span, Tracker};
 use crate::machine::FeedRule;
 use crate::machine::polar::{OriginPolicy, Polar};
 use crate::num::print::Decimals;
@@ -191,8 +204,8 @@ pub struct PolarIk {
     polar: Polar,
     options: Options,
     policy: OriginPolicy,
-    /// The last input target (IR frame).
-    pos: Joints,
+    /// The input position (IR frame), followed as every pass follows it.
+    track: Tracker,
     /// The machine's polar position after the last emitted move, if known.
     node: Option<PolarPoint>,
     /// `min(ω_max, 1.24 √α_max)`, 1/s.
@@ -220,7 +233,7 @@ impl PolarIk {
             tolerance: options.tolerance,
             polar,
             options,
-            pos: Joints::default(),
+            track: Tracker::default(),
             node: None,
         })
     }
@@ -346,8 +359,8 @@ impl PolarIk {
     /// A line (homing, a macro...) makes `clobbers` unknown: the position forgets them;
     /// returns them as the output names them (r and θ for X and Y).
     fn clobbered(&mut self, clobbers: AxisSet) -> AxisSet {
-        self.pos.forget(clobbers);
-        if self.xy(&self.pos).is_none() {
+        self.track.forget(clobbers);
+        if self.xy(self.track.pos()).is_none() {
             self.node = None;
         }
         self.map_axes(clobbers)
@@ -418,6 +431,9 @@ impl PolarIk {
                         return;
                     }
                 }
+                // The controller knows an axis a G92 declares (E0 at the start of a
+                // print): the pieces of the next move interpolate it from there.
+                self.track.offset(&o);
                 out.push(Block {
                     kind: BlockKind::Offset(o),
                     ..block

@@ -42,7 +42,7 @@ impl PolarIk {
         tolerance: f64,
         out: &mut Output<'_>,
     ) -> Option<Vec<Joints>> {
-        match arc_points(&self.pos, to, arc, tolerance) {
+        match arc_points(self.track.pos(), to, arc, tolerance) {
             Ok(points) => Some(points),
             Err(needed) => {
                 out.diag(
@@ -60,7 +60,7 @@ impl PolarIk {
                          is most likely a typo), or raise polar-ik's tolerance",
                     ),
                 );
-                self.pos = *to;
+                self.track.set_pos(*to);
                 None
             }
         }
@@ -72,15 +72,16 @@ impl PolarIk {
             && let (MotionKind::Arc(arc), &Target::Joints(to)) = (m.kind, &m.target)
         {
             let (a1, a2, _) = arc.plane.axes();
-            if self.pos.known.contains(a1) && self.pos.known.contains(a2) {
+            let from = *self.track.pos();
+            if from.known.contains(a1) && from.known.contains(a2) {
                 let Some(points) =
                     self.chords_or_error(&block, &to, &arc, self.tolerance, out)
                 else {
                     return;
                 };
                 let n = points.len();
-                let total = arc_length(&self.pos, &points);
-                let mut prev = self.pos;
+                let total = arc_length(&from, &points);
+                let mut prev = from;
                 for (i, p) in points.into_iter().enumerate() {
                     let mut piece = m.clone();
                     piece.kind = MotionKind::Linear;
@@ -93,28 +94,12 @@ impl PolarIk {
                     }
                     out.push(b);
                 }
-                self.pos = to;
+                self.track.set_pos(to);
                 return;
             }
         }
-        self.track(&block);
+        self.track.update(&block);
         out.push(block);
-    }
-
-    /// Follows the input position through a block that is passed on unchanged.
-    fn track(&mut self, block: &Block) {
-        match &block.kind {
-            BlockKind::Motion(m) => match m.target.joints() {
-                Some(j) if !m.machine_frame => self.pos = *j,
-                _ => self.pos.forget(m.written),
-            },
-            BlockKind::Command(c) => self.pos.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.pos.forget(v.clobbers),
-            _ => {}
-        }
-        if self.xy(&self.pos).is_none() {
-            self.node = None;
-        }
     }
 
     /// A motion block (`block` holds its span and comments, `m` the motion).
@@ -138,7 +123,7 @@ impl PolarIk {
             self.move_without_xy(block, m, &to, out);
             return;
         };
-        let from = self.pos;
+        let from = *self.track.pos();
         let (Some(_), Some(node)) = (self.xy(&from), self.node) else {
             self.first_point(block, m, &to, p1, out);
             return;
@@ -147,7 +132,7 @@ impl PolarIk {
             && let Some(shape) = self.direct_arc(&from, &to, &arc)
         {
             self.node = Some(self.arc_move(&block, &m, &shape, node, out));
-            self.pos = to;
+            self.track.set_pos(to);
             return;
         }
         let chords;
@@ -172,7 +157,7 @@ impl PolarIk {
             node = self.line(&block, &m, (&start, p), node, total, last, out);
             start = *p;
         }
-        self.pos = to;
+        self.track.set_pos(to);
         self.node = Some(node);
     }
 
@@ -185,7 +170,7 @@ impl PolarIk {
             )
             .at_span(block.span),
         );
-        self.pos.forget(m.written);
+        self.track.motion(&m);
         self.node = None;
         m.written = self.map_axes(m.written);
         if let Some(j) = m.target.joints_mut() {
@@ -213,7 +198,7 @@ impl PolarIk {
             j.forget(AxisSet::from_iter([Axis::X, Axis::Y]));
         }
         m.written = m.written.difference(AxisSet::from_iter([Axis::X, Axis::Y]));
-        self.pos = *to;
+        self.track.set_pos(*to);
         self.node = None;
         out.push(Block {
             kind: BlockKind::Motion(m),
@@ -247,7 +232,7 @@ impl PolarIk {
         m.target = Target::Joints(self.emitted(to, &p));
         m.written = self.map_axes(m.written);
         self.check_reach(&p, block.span, out);
-        self.pos = *to;
+        self.track.set_pos(*to);
         self.node = Some(p);
         out.push(Block {
             kind: BlockKind::Motion(m),
