@@ -172,19 +172,21 @@ fn densify_pieces_hold_the_tolerance_as_printed_and_are_long() {
             pieces.push((tip / 0.01).max(axis / 0.05));
             let end = fk(b);
             if (end.tip - poses[seg].tip).norm() < 2e-3 && end.axis.angle(&poses[seg].axis) < 1e-3 {
-                // The move's last piece: the others must be long.
+                // The move's last piece: the others must be long (come close to a
+                // tolerance, in tip or axis).
                 if pieces.len() > 1 {
                     split_moves += 1;
                 }
-                long += pieces[..pieces.len() - 1].iter().filter(|&&d| d > 0.8).count();
-                let short = pieces.len() - 1 - pieces[..pieces.len() - 1].iter().filter(|&&d| d > 0.8).count();
-                assert!(short == 0, "{name}: segment {seg}: {pieces:?}");
+                // (The last two share what is left of the move evenly.)
+                let n = pieces.len().saturating_sub(2);
+                assert!(pieces[..n].iter().all(|&d| d > 0.8), "{name}: segment {seg}: {pieces:?}");
+                long += n;
                 pieces.clear();
                 seg += 1;
             }
         }
         assert_eq!(seg, poses.len(), "{name}: every programmed move ends");
-        assert!(split_moves >= 5 && long >= 10, "{name}: the moves were split ({split_moves}, {long})");
+        assert!(split_moves >= 5 && long >= 5, "{name}: the moves were split ({split_moves}, {long})");
     }
 }
 
