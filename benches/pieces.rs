@@ -199,7 +199,10 @@ impl FiveAxis {
         }
         let mut best: Option<([f64; 2], f64)> = None;
         for s in &sols {
-            let a = [near_turn(s.angles[0], near[0]), near_turn(s.angles[1], near[1])];
+            let a = [
+                near_turn(s.angles[0], near[0]),
+                near_turn(s.angles[1], near[1]),
+            ];
             let cost = (a[0] - near[0]).powi(2) + (a[1] - near[1]).powi(2);
             if best.is_none_or(|(_, c)| cost < c) {
                 best = Some((a, cost));
@@ -244,8 +247,16 @@ impl FiveAxis {
         let cl0 = self.pose(a);
         let cl1 = self.pose(b);
         greedy(&mut |s0, s1| {
-            let n0 = if s0 == 0.0 { *a } else { self.node(a, b, &cl0, &cl1, s0) };
-            let n1 = if s1 == 1.0 { *b } else { self.node(a, b, &cl0, &cl1, s1) };
+            let n0 = if s0 == 0.0 {
+                *a
+            } else {
+                self.node(a, b, &cl0, &cl1, s0)
+            };
+            let n1 = if s1 == 1.0 {
+                *b
+            } else {
+                self.node(a, b, &cl0, &cl1, s1)
+            };
             self.deviation(&n0, &n1, &cl0, &cl1) <= 1.0
         })
     }
@@ -300,8 +311,16 @@ fn unit(tilt_deg: f64, azimuth_deg: f64) -> Unit<Vector3<f64>> {
 fn five_axis_programs(rng: &mut Rng) -> Vec<(&'static str, Vec<(ToolPose, bool)>)> {
     let mut sweep = Vec::new();
     for _ in 0..12 {
-        let p0 = Point3::new(rng.range(-40.0, 40.0), rng.range(-40.0, 40.0), rng.range(0.0, 30.0));
-        let p1 = Point3::new(rng.range(-40.0, 40.0), rng.range(-40.0, 40.0), rng.range(0.0, 30.0));
+        let p0 = Point3::new(
+            rng.range(-40.0, 40.0),
+            rng.range(-40.0, 40.0),
+            rng.range(0.0, 30.0),
+        );
+        let p1 = Point3::new(
+            rng.range(-40.0, 40.0),
+            rng.range(-40.0, 40.0),
+            rng.range(0.0, 30.0),
+        );
         let (t0, t1) = (rng.range(10.0, 50.0), rng.range(10.0, 50.0));
         // Azimuth changes that keep each step on its branch (as `ik` would).
         let a0 = rng.range(-180.0, 180.0);
@@ -358,7 +377,11 @@ fn five_axis_run(name: &str, poses: &[(ToolPose, bool)]) -> Tally {
         angles = fa.angles(p.axis, angles);
         let j = fa.joints(fa.m.linear(&p.tip, angles), angles);
         targets.push(j);
-        let kind = if *rapid { MotionKind::Rapid } else { MotionKind::Linear };
+        let kind = if *rapid {
+            MotionKind::Rapid
+        } else {
+            MotionKind::Linear
+        };
         blocks.push(motion(i as u32 + 1, kind, j));
     }
     let ctx = Context {
@@ -378,7 +401,8 @@ fn five_axis_run(name: &str, poses: &[(ToolPose, bool)]) -> Tally {
         // A move whose tool axis passes the singular orientation changes branch on the
         // way (the `ik` pass's business, with its own warnings): not a densify figure.
         let near_singular = (0..=32).any(|k| {
-            let v = Unit::new_normalize(cl0.axis.slerp(&cl1.axis, f64::from(k) / 32.0).into_inner());
+            let v =
+                Unit::new_normalize(cl0.axis.slerp(&cl1.axis, f64::from(k) / 32.0).into_inner());
             fa.m.singularity_distance(v) < 5.0
         });
         if near_singular {
@@ -389,7 +413,13 @@ fn five_axis_run(name: &str, poses: &[(ToolPose, bool)]) -> Tally {
             let j = as_printed(&d, j);
             let dev = fa.deviation(&prev, &j, &cl0, &cl1);
             if dev > 2.0 && std::env::var("PIECES_DEBUG").is_ok() {
-                eprintln!("{name} line {line}: {dev}\n a {:?}\n prev {:?}\n j {:?}\n b {:?}", fa.five(a), fa.five(&prev), fa.five(&j), fa.five(b));
+                eprintln!(
+                    "{name} line {line}: {dev}\n a {:?}\n prev {:?}\n j {:?}\n b {:?}",
+                    fa.five(a),
+                    fa.five(&prev),
+                    fa.five(&j),
+                    fa.five(b)
+                );
             }
             t.worst = t.worst.max(dev);
             prev = j;
@@ -602,12 +632,18 @@ fn polar_run(rng: &mut Rng, arcs: bool) -> Tally {
             i += 1;
         }
         let start = as_printed(&d, track.pos());
-        let mut prev = (start.get(r_ax).unwrap_or(0.0), start.get(t_ax).unwrap_or(0.0).to_radians());
+        let mut prev = (
+            start.get(r_ax).unwrap_or(0.0),
+            start.get(t_ax).unwrap_or(0.0).to_radians(),
+        );
         let theta0 = prev.1;
         while i < out.len() && out[i].span.line == *line {
             track.update(&out[i]);
             let j = as_printed(&d, track.pos());
-            let next = (j.get(r_ax).unwrap_or(0.0), j.get(t_ax).unwrap_or(0.0).to_radians());
+            let next = (
+                j.get(r_ax).unwrap_or(0.0),
+                j.get(t_ax).unwrap_or(0.0).to_radians(),
+            );
             t.worst = t.worst.max(polar_deviation(path, prev, next, tol));
             prev = next;
             t.emitted += 1;
@@ -620,9 +656,13 @@ fn polar_run(rng: &mut Rng, arcs: bool) -> Tally {
 }
 
 fn main() {
-    println!("Pieces emitted against the greedy minimum (dense sampling, {SAMPLES} samples a piece)");
+    println!(
+        "Pieces emitted against the greedy minimum (dense sampling, {SAMPLES} samples a piece)"
+    );
     println!();
-    println!("| program | moves | emitted | greedy minimum | ratio | worst printed deviation / tolerance |");
+    println!(
+        "| program | moves | emitted | greedy minimum | ratio | worst printed deviation / tolerance |"
+    );
     println!("|---|---|---|---|---|---|");
     let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
     let programs = five_axis_programs(&mut rng);

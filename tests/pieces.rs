@@ -179,14 +179,20 @@ fn densify_pieces_hold_the_tolerance_as_printed_and_are_long() {
                 }
                 // (The last two share what is left of the move evenly.)
                 let n = pieces.len().saturating_sub(2);
-                assert!(pieces[..n].iter().all(|&d| d > 0.8), "{name}: segment {seg}: {pieces:?}");
+                assert!(
+                    pieces[..n].iter().all(|&d| d > 0.8),
+                    "{name}: segment {seg}: {pieces:?}"
+                );
                 long += n;
                 pieces.clear();
                 seg += 1;
             }
         }
         assert_eq!(seg, poses.len(), "{name}: every programmed move ends");
-        assert!(split_moves >= 5 && long >= 5, "{name}: the moves were split ({split_moves}, {long})");
+        assert!(
+            split_moves >= 5 && long >= 5,
+            "{name}: the moves were split ({split_moves}, {long})"
+        );
     }
 }
 
@@ -201,7 +207,9 @@ impl Path {
     fn end(&self) -> Vector2<f64> {
         match self {
             Path::Line(_, b) => *b,
-            Path::Arc(c, r, start, sweep) => c + Vector2::new((start + sweep).cos(), (start + sweep).sin()) * *r,
+            Path::Arc(c, r, start, sweep) => {
+                c + Vector2::new((start + sweep).cos(), (start + sweep).sin()) * *r
+            }
         }
     }
 
@@ -214,7 +222,8 @@ impl Path {
             }
             Path::Arc(c, r, start, sweep) => {
                 let v = p - c;
-                let along = ((v.y.atan2(v.x) - start) * sweep.signum()).rem_euclid(std::f64::consts::TAU);
+                let along =
+                    ((v.y.atan2(v.x) - start) * sweep.signum()).rem_euclid(std::f64::consts::TAU);
                 let start_point = c + Vector2::new(start.cos(), start.sin()) * *r;
                 if along <= sweep.abs() {
                     (v.norm() - r).abs()
@@ -231,11 +240,12 @@ fn polar_program() -> (String, Vec<Path>) {
     let mut text = String::from("G21\nG90\nG0 X40 Y0 F6000\n");
     let mut paths = vec![Path::Line(Vector2::new(40.0, 0.0), Vector2::new(40.0, 0.0))];
     let mut at = Vector2::new(40.0, 0.0);
-    let line = |text: &mut String, paths: &mut Vec<Path>, at: &mut Vector2<f64>, to: Vector2<f64>| {
-        text.push_str(&format!("G1 X{:.6} Y{:.6} F1800\n", to.x, to.y));
-        paths.push(Path::Line(*at, to));
-        *at = to;
-    };
+    let line =
+        |text: &mut String, paths: &mut Vec<Path>, at: &mut Vector2<f64>, to: Vector2<f64>| {
+            text.push_str(&format!("G1 X{:.6} Y{:.6} F1800\n", to.x, to.y));
+            paths.push(Path::Line(*at, to));
+            *at = to;
+        };
     line(&mut text, &mut paths, &mut at, Vector2::new(-30.0, 25.0));
     line(&mut text, &mut paths, &mut at, Vector2::new(-5.0, -45.0));
     line(&mut text, &mut paths, &mut at, Vector2::new(25.0, 3.0));

@@ -499,7 +499,17 @@ impl Densify {
         true
     }
 
-    /// The orientation for `axis` nearest the interpolated rotary values `target`.
+    /// Whether the rotary values `angles` are within the rotaries' travel.
+    fn in_travel(&self, angles: [f64; 2]) -> bool {
+        (0..2).all(|k| {
+            self.machine
+                .limits(self.axes[k])
+                .is_none_or(|(lo, hi)| (lo - 1e-9..=hi + 1e-9).contains(&angles[k]))
+        })
+    }
+
+    /// The orientation for `axis` nearest the interpolated rotary values `target` (within
+    /// the rotaries' travel where a solution is).
     fn orientation(&self, axis: Unit<Vector3<f64>>, target: [f64; 2]) -> [f64; 2] {
         let m = &self.machine;
         let sols = m.inverse(axis);
@@ -519,7 +529,13 @@ impl Densify {
                 near_turn(o.angles[0], target[0]),
                 near_turn(o.angles[1], target[1]),
             ];
-            let cost = (a[0] - target[0]).powi(2) + (a[1] - target[1]).powi(2);
+            let mut cost = (a[0] - target[0]).powi(2) + (a[1] - target[1]).powi(2);
+            // A solution past a rotary's travel only where there is no other: a move
+            // that `ik` took across a branch change must not have its pieces leave
+            // the machine's range.
+            if !self.in_travel(a) {
+                cost += 1e12;
+            }
             if best.is_none_or(|(_, c)| cost < c) {
                 best = Some((a, cost));
             }
@@ -630,8 +646,8 @@ impl Densify {
             // The bound of a piece grows with the square of its length; it overstates
             // the deviation, so this is about the shortest fitting length.
             let (tip, axis) = self.machine.path_bounds(&cur.1.at, &b.at);
-            let ratio = (tip / (8.0 * self.options.tip_tolerance))
-                .max(axis / (8.0 * self.sin_axis_tol));
+            let ratio =
+                (tip / (8.0 * self.options.tip_tolerance)).max(axis / (8.0 * self.sin_axis_tol));
             (1.0 - s0) / ratio.sqrt().max(1.0)
         });
         let probe = |s: f64| {

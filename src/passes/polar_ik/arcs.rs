@@ -16,7 +16,8 @@
 //! middle of an interval only while that exceeds the tolerance, so it proves a piece
 //! within tolerance and rejects it as soon as one sample is beyond. A piece whose whole
 //! bound (its chord's deviation plus the arc's sagitta over it) is within tolerance needs
-//! no sample.
+//! no sample. A piece sweeps at most a quarter turn about the arc's centre, so that it
+//! goes from one end of its stretch of the arc to the other.
 
 use nalgebra::Vector2;
 
@@ -90,6 +91,12 @@ impl ArcShape {
     /// Whether the joint-linear path between the piece ends `a` and `b` (parameters and
     /// polar points on the arc) stays within `tol` of the arc (module documentation).
     pub fn fits(&self, a: &(f64, PolarPoint), b: &(f64, PolarPoint), tol: f64) -> bool {
+        // A piece sweeps at most a quarter turn of the arc, so it runs from one end of
+        // its stretch to the other (a whole circle's ends coincide: a piece standing
+        // still would be "on the arc").
+        if (b.0 - a.0).abs() * self.path.sweep.abs() > std::f64::consts::FRAC_PI_2 {
+            return false;
+        }
         let (pa, pb) = (a.1, b.1);
         let (dr, dth) = (pb.r - pa.r, pb.theta - pa.theta);
         let turn = pa.r.abs().max(pb.r.abs()) * dth;
@@ -191,8 +198,8 @@ pub(super) fn plan_arc(
             // The search runs over the stretch up to `end`, scaled to [0, 1].
             let span = end - cur.0;
             // The first guess: where the arc's own sagitta reaches the tolerance.
-            let first = 2.0 * (2.0 * tolerance / shape.path.max_radius()).sqrt()
-                / shape.path.sweep.abs();
+            let first =
+                2.0 * (2.0 * tolerance / shape.path.max_radius()).sqrt() / shape.path.sweep.abs();
             let step = guess.unwrap_or(first).min(span) / span;
             let probe = |x: f64| {
                 let next = (cur.0 + x * span, at(&cur, cur.0 + x * span));
@@ -371,5 +378,99 @@ impl PolarIk {
             (prev_t, prev_node, prev_joints) = (piece.s, piece.to, joints);
         }
         prev_node
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Vector3;
+
+    fn shape(from: [f64; 2], to: [f64; 2], centre: [f64; 2], clockwise: bool) -> ArcShape {
+        let j = |p: [f64; 2]| {
+            let mut j = Joints::default();
+            j.set(Axis::X, p[0]);
+            j.set(Axis::Y, p[1]);
+            j
+        };
+        let arc = Arc {
+            clockwise,
+            plane: Plane::XY,
+            center: Vector3::new(centre[0], centre[1], 0.0),
+            extra_turns: 0,
+        };
+        let path = ArcPath::new(&j(from), &j(to), &arc).expect("arc");
+        ArcShape::new(path, [0.0, 0.0], 1e-3).expect("clear of the centre")
+    }
+
+    /// Where a full circle about (10, 0) crosses the circle of radius 8 about the centre.
+    #[test]
+    fn crossings_lie_on_the_circle() {
+        let s = shape([5.0, 0.0], [5.0, 0.0], [10.0, 0.0], false);
+        let t = crossings(&s, 8.0);
+        assert_eq!(t.len(), 2, "{t:?}");
+        for t in &t {
+            assert!((s.xy(*t).norm() - 8.0).abs() < 1e-9);
+        }
+        assert!(crossings(&s, 2.0).is_empty());
+    }
+
+    /// About the table's centre an arc is exact in r and θ: a quarter turn fits as one
+    /// piece. Off the centre the same sweep strays far, and a short piece fits.
+    #[test]
+    fn fits_measures_the_gap_to_the_arc() {
+        let about = shape([20.0, 0.0], [0.0, 20.0], [0.0, 0.0], false);
+        let a = (
+            0.0,
+            PolarPoint {
+                r: 20.0,
+                theta: 0.0,
+            },
+        );
+        let b = (
+            1.0,
+            PolarPoint {
+                r: 20.0,
+                theta: std::f64::consts::FRAC_PI_2,
+            },
+        );
+        assert!(about.fits(&a, &b, 0.01));
+        let off = shape([30.0, 0.0], [20.0, 10.0], [20.0, 0.0], false);
+        let node = |t: f64| {
+            let p = off.xy(t);
+            (
+                t,
+                PolarPoint {
+                    r: p.norm(),
+                    theta: p.y.atan2(p.x),
+                },
+            )
+        };
+        assert!(!off.fits(&node(0.0), &node(1.0), 0.01));
+        assert!(off.fits(&node(0.0), &node(0.02), 0.01));
+        // The proof agrees with sampling: the longest fitting piece strays close to the
+        // tolerance.
+        let mut lo = 0.02;
+        let mut hi = 1.0;
+        for _ in 0..40 {
+            let mid = 0.5 * (lo + hi);
+            if off.fits(&node(0.0), &node(mid), 0.01) {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let (pa, pb) = (node(0.0).1, node(lo).1);
+        let worst = (0..=400)
+            .map(|k| {
+                let u = f64::from(k) / 400.0;
+                let p = PolarPoint {
+                    r: pa.r + (pb.r - pa.r) * u,
+                    theta: pa.theta + (pb.theta - pa.theta) * u,
+                };
+                ((p.xy() - Vector2::new(20.0, 0.0)).norm() - 10.0).abs()
+            })
+            .fold(0.0, f64::max);
+        assert!(worst <= 0.01 && worst > 0.009, "{worst}");
     }
 }

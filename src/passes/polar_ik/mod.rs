@@ -187,7 +187,9 @@ pub const INFO: PassInfo = PassInfo {
                 ));
             }
         };
-        Ok(Box::new(PolarIk::new(polar, options)?.printed_with(ctx.decimals)?))
+        Ok(Box::new(
+            PolarIk::new(polar, options)?.printed_with(ctx.decimals)?,
+        ))
     },
     defaults: || super::to_toml(&Options::default()),
 };
@@ -252,9 +254,12 @@ impl PolarIk {
         let half = |axis: Axis| 0.5 * 10f64.powi(-i32::from(d.axis(axis)));
         let rounding = match self.options.kinematics {
             Kinematics::Post => {
-                half(self.polar.r_axis) + self.polar.r_max * half(self.polar.theta_axis).to_radians()
+                half(self.polar.r_axis)
+                    + self.polar.r_max * half(self.polar.theta_axis).to_radians()
             }
-            Kinematics::Controller => half(Axis::X).max(half(Axis::Y)).max(half(Axis::Z)) * 3f64.sqrt(),
+            Kinematics::Controller => {
+                half(Axis::X).max(half(Axis::Y)).max(half(Axis::Z)) * 3f64.sqrt()
+            }
         };
         self.tolerance = self.options.tolerance - rounding;
         if self.tolerance <= 0.0 {

@@ -74,8 +74,7 @@ impl PolarIk {
             let (a1, a2, _) = arc.plane.axes();
             let from = *self.track.pos();
             if from.known.contains(a1) && from.known.contains(a2) {
-                let Some(points) =
-                    self.chords_or_error(&block, &to, &arc, self.tolerance, out)
+                let Some(points) = self.chords_or_error(&block, &to, &arc, self.tolerance, out)
                 else {
                     return;
                 };
