@@ -509,8 +509,13 @@ impl Densify {
     }
 
     /// The orientation for `axis` nearest the interpolated rotary values `target` (within
-    /// the rotaries' travel where a solution is).
-    fn orientation(&self, axis: Unit<Vector3<f64>>, target: [f64; 2]) -> [f64; 2] {
+    /// the rotaries' travel where a solution is, when `keep_travel`).
+    fn orientation(
+        &self,
+        axis: Unit<Vector3<f64>>,
+        target: [f64; 2],
+        keep_travel: bool,
+    ) -> [f64; 2] {
         let m = &self.machine;
         let sols = m.inverse(axis);
         let singular = sols.iter().any(|o| o.free.is_some())
@@ -530,10 +535,10 @@ impl Densify {
                 near_turn(o.angles[1], target[1]),
             ];
             let mut cost = (a[0] - target[0]).powi(2) + (a[1] - target[1]).powi(2);
-            // A solution past a rotary's travel only where there is no other: a move
-            // that `ik` took across a branch change must not have its pieces leave
-            // the machine's range.
-            if !self.in_travel(a) {
+            // A solution past a rotary's travel only where there is no other: the pieces
+            // of a move within travel (that `ik` took across a branch change, say) must
+            // not leave the machine's range.
+            if keep_travel && !self.in_travel(a) {
                 cost += 1e12;
             }
             if best.is_none_or(|(_, c)| cost < c) {
@@ -557,7 +562,8 @@ impl Densify {
             l(a.at.angles[0], b.at.angles[0]),
             l(a.at.angles[1], b.at.angles[1]),
         ];
-        let angles = self.orientation(axis, target);
+        let keep_travel = self.in_travel(a.at.angles) && self.in_travel(b.at.angles);
+        let angles = self.orientation(axis, target, keep_travel);
         let xyz = self.machine.linear(&tip, angles);
         let mut joints = b.joints;
         for ax in b.joints.known.iter() {
