@@ -25,8 +25,12 @@ use ncpost::ir::{Axis, Block, BlockKind, Feed, FeedMode, Joints, Motion, MotionK
 use ncpost::ir::{Target, Tracker};
 use ncpost::machine::{Machine, ToolPose};
 use ncpost::num::print::{Decimals, printed};
-use ncpost::passes::{self, Context, Output};
+use ncpost::passes::Context;
 use ncpost::preset::{Emit, Preset};
+
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::deviation::{arc_angle, arc_distance, segment_distance, segment_distance_xy, unit};
 
 /// Samples per piece when checking a piece of the reference or of the pass's output.
 const SAMPLES: usize = 96;
@@ -69,17 +73,7 @@ fn options_of(p: &Preset, name: &str, extra: &str) -> toml::Table {
 
 /// Runs pass `name` over `blocks` one block at a time (as a stream).
 fn run_pass(name: &str, options: &toml::Table, ctx: &Context, blocks: Vec<Block>) -> Vec<Block> {
-    let mut pass = passes::build(name, options, ctx).expect("pass");
-    let mut out = Vec::new();
-    let mut diags = Vec::new();
-    {
-        let mut o = Output::new(&mut out, &mut diags);
-        for b in blocks {
-            pass.run(&mut vec![b], &mut o);
-        }
-        pass.finish(&mut o);
-    }
-    out
+    common::run_pass(name, options, ctx, blocks).0
 }
 
 /// The motion targets of `out`, grouped by the line of the input block they came from.
@@ -267,43 +261,6 @@ impl FiveAxis {
     }
 }
 
-/// Distance from `p` to the segment `a`–`b`.
-fn segment_distance(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
-    let d = b - a;
-    let len2 = d.norm_squared();
-    let t = if len2 > 0.0 {
-        ((p - a).dot(&d) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + d * t)).norm()
-}
-
-/// Angle (degrees) from `v` to the shorter great-circle arc `u0`–`u1`.
-fn arc_angle(v: &Vector3<f64>, u0: &Vector3<f64>, u1: &Vector3<f64>) -> f64 {
-    let phi = u0.angle(u1);
-    let to = |w: &Vector3<f64>| v.angle(w).to_degrees();
-    let ends = to(u0).min(to(u1));
-    if phi < 1e-12 {
-        return ends;
-    }
-    let n = u0.cross(u1).normalize();
-    let in_plane = v - n * n.dot(v);
-    let e2 = n.cross(u0);
-    let alpha = in_plane.dot(&e2).atan2(in_plane.dot(u0));
-    if (0.0..=phi).contains(&alpha) {
-        n.dot(v).abs().asin().to_degrees().min(ends)
-    } else {
-        ends
-    }
-}
-
-fn unit(tilt_deg: f64, azimuth_deg: f64) -> Unit<Vector3<f64>> {
-    let (st, ct) = tilt_deg.to_radians().sin_cos();
-    let (sp, cp) = azimuth_deg.to_radians().sin_cos();
-    Unit::new_normalize(Vector3::new(st * cp, st * sp, ct))
-}
-
 /// The CL poses of the generated 5-axis programs: `sweep` (the tip along lines while the
 /// tool axis sweeps between tilts and azimuths) and `c-arcs` (the tip on circles about
 /// the table's axis, tilted outwards, so the C table turns along arcs).
@@ -474,40 +431,27 @@ impl Path {
                 radius,
                 start,
                 sweep,
-            } => {
-                let (sn, cs) = (start + sweep * s).sin_cos();
-                centre + Vector2::new(cs, sn) * *radius
-            }
+            } => on_circle(centre, *radius, start + sweep * s),
         }
     }
 
     /// Distance from `p` to the path.
     fn distance(&self, p: &Vector2<f64>) -> f64 {
         match self {
-            Path::Line(a, b) => {
-                let d = b - a;
-                let t = ((p - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0);
-                (p - (a + d * t)).norm()
-            }
+            Path::Line(a, b) => segment_distance_xy(p, a, b),
             Path::Arc {
                 centre,
                 radius,
                 start,
                 sweep,
-            } => {
-                let v = p - centre;
-                let ang = v.y.atan2(v.x) - start;
-                let tau = std::f64::consts::TAU;
-                // The angle from the start in the arc's sense, in [0, 2π).
-                let along = (ang * sweep.signum()).rem_euclid(tau);
-                if along <= sweep.abs() {
-                    (v.norm() - radius).abs()
-                } else {
-                    (p - self.at(0.0)).norm().min((p - self.at(1.0)).norm())
-                }
-            }
+            } => arc_distance(p, centre, *radius, *start, *sweep),
         }
     }
+}
+
+/// The point at `angle` (radians) of the circle about `centre` of `radius`.
+fn on_circle(centre: &Vector2<f64>, radius: f64, angle: f64) -> Vector2<f64> {
+    centre + Vector2::new(angle.cos(), angle.sin()) * radius
 }
 
 /// The signed angle from `a` to `b`.
@@ -573,7 +517,7 @@ fn polar_program(rng: &mut Rng, arcs: bool) -> (String, Vec<(u32, Path)>) {
             let centre = start + Vector2::new(dir.cos(), dir.sin()) * radius;
             let begin = (start - centre).y.atan2((start - centre).x);
             let sweep = rng.range(0.5, 5.0) * if rng.next() < 0.5 { -1.0 } else { 1.0 };
-            let end = centre + Vector2::new((begin + sweep).cos(), (begin + sweep).sin()) * radius;
+            let end = on_circle(&centre, radius, begin + sweep);
             let g = if sweep < 0.0 { 2 } else { 3 };
             let (i, j) = ((centre - start).x, (centre - start).y);
             let l = push(

@@ -4,12 +4,15 @@
 //! pieces are about as long as the tolerance allows (as few as it allows: a piece that is
 //! not the last of its move comes close to the tolerance).
 
-use nalgebra::{Point3, Unit, Vector2, Vector3};
+use nalgebra::{Point3, Vector2};
 use ncpost::diag::Severity;
 use ncpost::ir::Axis;
 use ncpost::machine::{Machine, ToolPose};
 use ncpost::pipeline::{Pipeline, Source};
 use ncpost::preset::Preset;
+
+mod common;
+use common::deviation::{arc_angle, arc_distance, segment_distance, segment_distance_xy, unit};
 
 const PRESETS: [&str; 4] = ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"];
 
@@ -67,41 +70,6 @@ fn printed_moves(text: &str, letters: &[char]) -> Vec<(Vec<f64>, Vec<f64>, bool)
         }
     }
     moves
-}
-
-fn unit(tilt: f64, azimuth: f64) -> Unit<Vector3<f64>> {
-    let (st, ct) = tilt.to_radians().sin_cos();
-    let (sp, cp) = azimuth.to_radians().sin_cos();
-    Unit::new_normalize(Vector3::new(st * cp, st * sp, ct))
-}
-
-/// Distance from `p` to the segment `a`–`b`.
-fn segment_distance(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
-    let d = b - a;
-    let len2 = d.norm_squared();
-    let t = if len2 > 0.0 {
-        ((p - a).dot(&d) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + d * t)).norm()
-}
-
-/// Angle (degrees) from `v` to the great-circle arc `u0`–`u1`.
-fn arc_angle(v: &Vector3<f64>, u0: &Vector3<f64>, u1: &Vector3<f64>) -> f64 {
-    let phi = u0.angle(u1);
-    let ends = v.angle(u0).min(v.angle(u1)).to_degrees();
-    if phi < 1e-12 {
-        return ends;
-    }
-    let n = u0.cross(u1).normalize();
-    let in_plane = v - n * n.dot(v);
-    let alpha = in_plane.dot(&n.cross(u0)).atan2(in_plane.dot(u0));
-    if (0.0..=phi).contains(&alpha) {
-        n.dot(v).abs().asin().to_degrees().min(ends)
-    } else {
-        ends
-    }
 }
 
 /// Sweeps of the tool axis along lines, as CL data, with their poses.
@@ -215,22 +183,8 @@ impl Path {
 
     fn distance(&self, p: &Vector2<f64>) -> f64 {
         match self {
-            Path::Line(a, b) => {
-                let d = b - a;
-                let t = ((p - a).dot(&d) / d.norm_squared()).clamp(0.0, 1.0);
-                (p - (a + d * t)).norm()
-            }
-            Path::Arc(c, r, start, sweep) => {
-                let v = p - c;
-                let along =
-                    ((v.y.atan2(v.x) - start) * sweep.signum()).rem_euclid(std::f64::consts::TAU);
-                let start_point = c + Vector2::new(start.cos(), start.sin()) * *r;
-                if along <= sweep.abs() {
-                    (v.norm() - r).abs()
-                } else {
-                    (p - start_point).norm().min((p - self.end()).norm())
-                }
-            }
+            Path::Line(a, b) => segment_distance_xy(p, a, b),
+            Path::Arc(c, r, start, sweep) => arc_distance(p, c, *r, *start, *sweep),
         }
     }
 }
