@@ -552,16 +552,21 @@ impl Densify {
 
     /// The position at fraction `s` of the programmed move from `a` to `b` (whose
     /// tool-axis arc is `arc`): the tip on the line, the axis on the arc, the rotaries
-    /// nearest their interpolated values and every other axis interpolated.
-    fn node_on(&self, a: &Node, b: &Node, arc: &AxisArc, s: f64) -> Node {
+    /// nearest their values interpolated from `from` (the piece's start, at its fraction,
+    /// so the pieces follow the branch the path is on even where the rotaries swing
+    /// unevenly, near a singular orientation) to `b`, and every other axis interpolated.
+    fn node_on(&self, a: &Node, b: &Node, arc: &AxisArc, s: f64, from: &(f64, Node)) -> Node {
         let (ta, tb) = (self.pose(a).tip, self.pose(b).tip);
         let tip = ta + (tb - ta) * s;
         let axis = arc.slerp(s);
         let l = |p: f64, q: f64| p + (q - p) * s;
-        let target = [
-            l(a.at.angles[0], b.at.angles[0]),
-            l(a.at.angles[1], b.at.angles[1]),
-        ];
+        let u = if from.0 < 1.0 {
+            (s - from.0) / (1.0 - from.0)
+        } else {
+            1.0
+        };
+        let lf = |k: usize| from.1.at.angles[k] + (b.at.angles[k] - from.1.at.angles[k]) * u;
+        let target = [lf(0), lf(1)];
         let keep_travel = self.in_travel(a.at.angles) && self.in_travel(b.at.angles);
         let angles = self.orientation(axis, target, keep_travel);
         let xyz = self.machine.linear(&tip, angles);
@@ -620,7 +625,7 @@ impl Densify {
             if fits_rest && fits {
                 // The last two pieces share the rest evenly, rather than the longest
                 // piece and a sliver after it.
-                let even = self.node_on(a, b, &arc, 0.5 * (cur.0 + 1.0));
+                let even = self.node_on(a, b, &arc, 0.5 * (cur.0 + 1.0), &cur);
                 if self.within(&cur.1, &even) && self.within(&even, b) {
                     piece(motion, span, &even, out);
                     break;
@@ -657,7 +662,7 @@ impl Densify {
             (1.0 - s0) / ratio.sqrt().max(1.0)
         });
         let probe = |s: f64| {
-            let n = self.node_on(a, b, arc, s);
+            let n = self.node_on(a, b, arc, s, cur);
             self.within(&cur.1, &n).then_some(n)
         };
         match longest_piece(s0, step, min_step, probe) {
@@ -667,7 +672,7 @@ impl Densify {
                 let n = if s >= 1.0 {
                     b.clone()
                 } else {
-                    self.node_on(a, b, arc, s)
+                    self.node_on(a, b, arc, s, cur)
                 };
                 (s, n, false)
             }

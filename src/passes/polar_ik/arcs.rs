@@ -16,8 +16,7 @@
 //! middle of an interval only while that exceeds the tolerance, so it proves a piece
 //! within tolerance and rejects it as soon as one sample is beyond. A piece whose whole
 //! bound (its chord's deviation plus the arc's sagitta over it) is within tolerance needs
-//! no sample. A piece sweeps at most a quarter turn about the arc's centre, so that it
-//! goes from one end of its stretch of the arc to the other.
+//! no sample. A piece turns at most 20° about the arc's centre ([`MAX_TURN`]).
 
 use nalgebra::Vector2;
 
@@ -30,6 +29,14 @@ use crate::passes::densify::longest_piece;
 use super::geometry::{Piece, PolarPoint, angle_between};
 use super::moves::segment_distance;
 use super::{MAX_ARC_CHORDS, PolarIk};
+
+/// The most a piece turns about the arc's centre, radians (20°): a piece runs from one
+/// end of its stretch of the arc to the other (a whole circle's ends coincide, and a piece
+/// standing still would be "on the arc"), and its path is within 0.5 % of its chord's
+/// length, which the passes after it count material and time by. Only arcs of a few
+/// tenths of a millimetre, or about the table's centre, have longer pieces within
+/// tolerance.
+const MAX_TURN: f64 = 0.35;
 
 /// Bisection levels of one check before a piece is treated as beyond tolerance; only a
 /// gap within rounding of the tolerance gets that deep.
@@ -91,10 +98,7 @@ impl ArcShape {
     /// Whether the joint-linear path between the piece ends `a` and `b` (parameters and
     /// polar points on the arc) stays within `tol` of the arc (module documentation).
     pub fn fits(&self, a: &(f64, PolarPoint), b: &(f64, PolarPoint), tol: f64) -> bool {
-        // A piece sweeps at most a quarter turn of the arc, so it runs from one end of
-        // its stretch to the other (a whole circle's ends coincide: a piece standing
-        // still would be "on the arc").
-        if (b.0 - a.0).abs() * self.path.sweep.abs() > std::f64::consts::FRAC_PI_2 {
+        if (b.0 - a.0).abs() * self.path.sweep.abs() > MAX_TURN {
             return false;
         }
         let (pa, pb) = (a.1, b.1);

@@ -25,9 +25,10 @@ struct Line {
     tolerance: f64,
 }
 
-/// The share of the tolerance each of the two cuts of an arc gets: the chords stray from
-/// the arc and the polar path from the chords, so each gets half, and the polar path
-/// stays within the whole tolerance of the arc.
+/// The share of the tolerance each of the two cuts of an arc that goes the way of chords
+/// gets (another plane, or passing the table's centre; see `arcs` for the others): the
+/// chords stray from the arc and the polar path from the chords, so each gets half, and
+/// the polar path stays within the whole tolerance of the arc.
 const ARC_SHARE: f64 = 0.5;
 
 impl PolarIk {
