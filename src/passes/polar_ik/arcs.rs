@@ -419,26 +419,23 @@ mod tests {
         assert!(crossings(&s, 2.0).is_empty());
     }
 
-    /// About the table's centre an arc is exact in r and θ: a quarter turn fits as one
-    /// piece. Off the centre the same sweep strays far, and a short piece fits.
+    /// About the table's centre an arc is exact in r and θ: a piece of up to
+    /// [`MAX_TURN`] fits. Off the centre the same sweep strays far, and a short piece fits.
     #[test]
     fn fits_measures_the_gap_to_the_arc() {
-        let about = shape([20.0, 0.0], [0.0, 20.0], [0.0, 0.0], false);
-        let a = (
-            0.0,
-            PolarPoint {
-                r: 20.0,
-                theta: 0.0,
-            },
-        );
-        let b = (
-            1.0,
-            PolarPoint {
-                r: 20.0,
-                theta: std::f64::consts::FRAC_PI_2,
-            },
-        );
-        assert!(about.fits(&a, &b, 0.01));
+        let (s, c) = 0.5f64.sin_cos();
+        let about = shape([20.0, 0.0], [20.0 * c, 20.0 * s], [0.0, 0.0], false);
+        let at = |t: f64| {
+            (
+                t,
+                PolarPoint {
+                    r: 20.0,
+                    theta: 0.5 * t,
+                },
+            )
+        };
+        assert!(about.fits(&at(0.0), &at(0.6), 0.01));
+        assert!(!about.fits(&at(0.0), &at(0.8), 0.01));
         let off = shape([30.0, 0.0], [20.0, 10.0], [20.0, 0.0], false);
         let node = |t: f64| {
             let p = off.xy(t);
