@@ -16,7 +16,8 @@
 //! middle of an interval only while that exceeds the tolerance, so it proves a piece
 //! within tolerance and rejects it as soon as one sample is beyond. A piece whose whole
 //! bound (its chord's deviation plus the arc's sagitta over it) is within tolerance needs
-//! no sample. A piece turns at most 20° about the arc's centre ([`MAX_TURN`]).
+//! no sample. A piece turns at most 20° about the arc's centre ([`MAX_TURN`]), or as far
+//! as a chord of half the tolerance on arcs of a few tenths of a millimetre.
 
 use nalgebra::Vector2;
 
@@ -30,12 +31,13 @@ use super::geometry::{Piece, PolarPoint, angle_between};
 use super::moves::segment_distance;
 use super::{MAX_ARC_CHORDS, PolarIk};
 
-/// The most a piece turns about the arc's centre, radians (20°): a piece runs from one
-/// end of its stretch of the arc to the other (a whole circle's ends coincide, and a piece
+/// The most a piece turns about the arc's centre, radians (20°), unless the chords of half
+/// the tolerance (how such arcs were cut before) turn further: a piece runs from one end
+/// of its stretch of the arc to the other (a whole circle's ends coincide, and a piece
 /// standing still would be "on the arc"), and its path is within 0.5 % of its chord's
-/// length, which the passes after it count material and time by. Only arcs of a few
-/// tenths of a millimetre, or about the table's centre, have longer pieces within
-/// tolerance.
+/// length, which the passes after it count material and time by. Only arcs about the
+/// table's centre have longer pieces within tolerance; arcs of a few tenths of a
+/// millimetre get their chords' turn (up to half a turn).
 const MAX_TURN: f64 = 0.35;
 
 /// Bisection levels of one check before a piece is treated as beyond tolerance; only a
@@ -52,13 +54,16 @@ pub(super) struct ArcShape {
     k: f64,
     /// The least distance of the arc from the table's centre, mm (at least the margin).
     clearance: f64,
+    /// The most a piece turns about the arc's centre, radians ([`MAX_TURN`]).
+    max_turn: f64,
 }
 
 impl ArcShape {
-    /// The shape of `path` (an XY arc) with the table's centre at `table` (IR frame);
-    /// `None` when the arc may come within `margin` of the table's centre, where θ is
-    /// undefined (such arcs go the way of chords, which handles the centre).
-    pub fn new(path: ArcPath, table: [f64; 2], margin: f64) -> Option<ArcShape> {
+    /// The shape of `path` (an XY arc) with the table's centre at `table` (IR frame), cut
+    /// within `tolerance`; `None` when the arc may come within `margin` of the table's
+    /// centre, where θ is undefined (such arcs go the way of chords, which handles the
+    /// centre).
+    pub fn new(path: ArcPath, table: [f64; 2], margin: f64, tolerance: f64) -> Option<ArcShape> {
         let centre = Vector2::new(path.centre[0] - table[0], path.centre[1] - table[1]);
         let (lo, hi) = (path.r0.min(path.r1), path.r0.max(path.r1));
         let d = centre.norm();
@@ -71,11 +76,20 @@ impl ArcShape {
         } else {
             (path.r1 - path.r0) / path.sweep
         };
+        // The turn of a chord of half the tolerance (NaN, so half a turn, when the arc
+        // is within that of its centre).
+        let chord = 2.0 * (1.0 - 0.5 * tolerance / path.max_radius()).acos();
+        let max_turn = if chord.is_nan() {
+            std::f64::consts::PI
+        } else {
+            chord.clamp(MAX_TURN, std::f64::consts::PI)
+        };
         Some(ArcShape {
             path,
             centre,
             k,
             clearance,
+            max_turn,
         })
     }
 
@@ -98,7 +112,7 @@ impl ArcShape {
     /// Whether the joint-linear path between the piece ends `a` and `b` (parameters and
     /// polar points on the arc) stays within `tol` of the arc (module documentation).
     pub fn fits(&self, a: &(f64, PolarPoint), b: &(f64, PolarPoint), tol: f64) -> bool {
-        if (b.0 - a.0).abs() * self.path.sweep.abs() > MAX_TURN {
+        if (b.0 - a.0).abs() * self.path.sweep.abs() > self.max_turn {
             return false;
         }
         let (pa, pb) = (a.1, b.1);
@@ -236,6 +250,27 @@ fn piece((s, to): (f64, PolarPoint)) -> Piece {
     }
 }
 
+/// The share of the arc's material laid down by the end of each piece: by the pieces'
+/// straight XYZ lengths, which the nozzle follows within the tolerance, so every piece
+/// gets the same material per millimetre (the pieces turn by different angles).
+fn material_shares(path: &ArcPath, pieces: &[Piece]) -> Vec<f64> {
+    let mut prev = path.from.xyz();
+    let mut sums = Vec::with_capacity(pieces.len());
+    let mut total = 0.0;
+    for p in pieces {
+        let at = path.point(p.s).xyz();
+        total += (at - prev).norm();
+        sums.push(total);
+        prev = at;
+    }
+    if total > 0.0 {
+        sums.iter_mut().for_each(|s| *s /= total);
+    } else {
+        sums = pieces.iter().map(|p| p.s).collect();
+    }
+    sums
+}
+
 /// The parameters in `(0, 1)`, ascending, where the arc crosses the circle of radius
 /// `radius` about the table's centre (at its mean radius for a spiral).
 pub(super) fn crossings(shape: &ArcShape, radius: f64) -> Vec<f64> {
@@ -287,7 +322,7 @@ impl PolarIk {
         if path.chord_count(self.tolerance) > MAX_ARC_CHORDS {
             return None;
         }
-        ArcShape::new(path, self.options.center, 1e-3)
+        ArcShape::new(path, self.options.center, 1e-3, self.tolerance)
     }
 
     /// Emits an XY arc, from polar position `node`, as pieces on the arc (module
@@ -347,9 +382,15 @@ impl PolarIk {
         let (mut prev_t, mut prev_node) = (0.0, node);
         let mut prev_joints = self.emitted(&path.from, &node);
         let count = pieces.len();
+        let shares = material_shares(path, &pieces);
         for (i, piece) in pieces.iter().enumerate() {
             self.check_reach(&piece.to, block.span, out);
             let mut joints = path.point(piece.s);
+            if let (Some(e0), Some(e1)) = (path.from.get(Axis::E), path.to.get(Axis::E))
+                && i + 1 < count
+            {
+                joints.set(Axis::E, e0 + (e1 - e0) * shares[i]);
+            }
             self.to_polar(&mut joints, &piece.to);
             let seconds = speed.map_or(0.0, |v| {
                 let (piece_xy, len) = stretch(prev_t, piece.s);
@@ -404,7 +445,7 @@ mod tests {
             extra_turns: 0,
         };
         let path = ArcPath::new(&j(from), &j(to), &arc).expect("arc");
-        ArcShape::new(path, [0.0, 0.0], 1e-3).expect("clear of the centre")
+        ArcShape::new(path, [0.0, 0.0], 1e-3, 0.01).expect("clear of the centre")
     }
 
     /// Where a full circle about (10, 0) crosses the circle of radius 8 about the centre.
