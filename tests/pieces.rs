@@ -265,13 +265,13 @@ fn check_polar(preset: &Preset, lengths: bool) {
             worst = worst.max(paths[k].distance(&p));
         }
         assert!(worst <= 0.01 + 1e-9, "path {k}: {worst} mm off");
-        // An arc's piece turns at most 20° about the arc's centre (polar-ik's MAX_TURN):
-        // such a piece is as long as it may be.
+        // An arc's piece turns at most 20° about the arc's centre (polar-ik's MAX_TURN,
+        // shared evenly over the arc): such a piece is as long as it may be.
         let turn = match &paths[k] {
             Path::Arc(c, ..) => (xy(&a) - c).angle(&(xy(&b) - c)),
             Path::Line(..) => 0.0,
         };
-        pieces.push(if turn > 0.349 { 1.0 } else { worst / 0.01 });
+        pieces.push(if turn > 0.29 { 1.0 } else { worst / 0.01 });
         if (xy(&b) - paths[k].end()).norm() < 2e-3 {
             // All but the last two pieces of a move are long (the last two of a line
             // share what is left evenly).

@@ -84,6 +84,13 @@ impl ArcShape {
         } else {
             chord.clamp(MAX_TURN, std::f64::consts::PI)
         };
+        // Whole pieces of the arc: where the turn is what limits them, they are equal.
+        let sweep = path.sweep.abs();
+        let max_turn = if sweep > 0.0 {
+            sweep / (sweep / max_turn).ceil()
+        } else {
+            max_turn
+        };
         Some(ArcShape {
             path,
             centre,
@@ -112,7 +119,7 @@ impl ArcShape {
     /// Whether the joint-linear path between the piece ends `a` and `b` (parameters and
     /// polar points on the arc) stays within `tol` of the arc (module documentation).
     pub fn fits(&self, a: &(f64, PolarPoint), b: &(f64, PolarPoint), tol: f64) -> bool {
-        if (b.0 - a.0).abs() * self.path.sweep.abs() > self.max_turn {
+        if (b.0 - a.0).abs() * self.path.sweep.abs() > self.max_turn * (1.0 + 1e-9) {
             return false;
         }
         let (pa, pb) = (a.1, b.1);
@@ -212,6 +219,17 @@ pub(super) fn plan_arc(
                 pieces.push(piece(last));
                 cur = last;
                 break;
+            }
+            // The longest turn a piece may make, when it fits: then no search.
+            let turn_end = cur.0 + shape.max_turn / shape.path.sweep.abs();
+            if turn_end < end {
+                let next = (turn_end, at(&cur, turn_end));
+                if shape.fits(&cur, &next, tolerance) {
+                    guess = Some(turn_end - cur.0);
+                    pieces.push(piece(next));
+                    cur = next;
+                    continue;
+                }
             }
             // The search runs over the stretch up to `end`, scaled to [0, 1].
             let span = end - cur.0;
@@ -460,8 +478,8 @@ mod tests {
         assert!(crossings(&s, 2.0).is_empty());
     }
 
-    /// About the table's centre an arc is exact in r and θ: a piece of up to
-    /// [`MAX_TURN`] fits. Off the centre the same sweep strays far, and a short piece fits.
+    /// About the table's centre an arc is exact in r and θ: a piece of up to its most
+    /// turn fits. Off the centre the same sweep strays far, and a short piece fits.
     #[test]
     fn fits_measures_the_gap_to_the_arc() {
         let (s, c) = 0.5f64.sin_cos();
@@ -475,8 +493,9 @@ mod tests {
                 },
             )
         };
-        assert!(about.fits(&at(0.0), &at(0.6), 0.01));
-        assert!(!about.fits(&at(0.0), &at(0.8), 0.01));
+        // (The 0.5 rad arc turns 0.25 rad a piece at most: two equal pieces.)
+        assert!(about.fits(&at(0.0), &at(0.5), 0.01));
+        assert!(!about.fits(&at(0.0), &at(0.6), 0.01));
         let off = shape([30.0, 0.0], [20.0, 10.0], [20.0, 0.0], false);
         let node = |t: f64| {
             let p = off.xy(t);
