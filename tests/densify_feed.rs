@@ -14,9 +14,12 @@ use ncpost::ir::{
     OffsetChange, OffsetCode, Span, Target, dump,
 };
 use ncpost::machine::{Machine, ToolPose};
-use ncpost::passes::{self, Context, Output};
+use ncpost::passes::{self, Context};
 use ncpost::preset::Preset;
 use proptest::prelude::*;
+
+mod common;
+use common::deviation::{arc_angle, segment_distance, unit};
 
 const PRESETS: [&str; 4] = ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"];
 
@@ -120,17 +123,7 @@ fn run(
         decimals,
         ..Context::default()
     };
-    let mut pass = passes::build(name, &opts, &ctx).expect("pass");
-    let mut out = Vec::new();
-    let mut diags = Vec::new();
-    {
-        let mut o = Output::new(&mut out, &mut diags);
-        for b in blocks {
-            pass.run(&mut vec![b], &mut o);
-        }
-        pass.finish(&mut o);
-    }
-    (out, diags)
+    common::run_pass(name, &opts, &ctx, blocks)
 }
 
 fn target(b: &Block) -> Option<Joints> {
@@ -144,38 +137,6 @@ fn feed_of(b: &Block) -> Feed {
     match &b.kind {
         BlockKind::Motion(m) => m.feed,
         _ => panic!("not a motion"),
-    }
-}
-
-/// Distance from `p` to the segment `a`-`b`.
-fn segment_distance(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
-    let d = b - a;
-    let len2 = d.norm_squared();
-    let t = if len2 > 0.0 {
-        ((p - a).dot(&d) / len2).clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    (p - (a + d * t)).norm()
-}
-
-/// Angle (degrees) from `v` to the nearest point of the shorter great-circle arc `u0`-`u1`,
-/// by brute force over the arc (fine sampling, then the exact angle to the circle).
-fn arc_angle(v: &Vector3<f64>, u0: &Vector3<f64>, u1: &Vector3<f64>) -> f64 {
-    let phi = u0.angle(u1);
-    let to = |w: &Vector3<f64>| v.angle(w).to_degrees();
-    let ends = to(u0).min(to(u1));
-    if phi < 1e-12 {
-        return ends;
-    }
-    let n = u0.cross(u1).normalize();
-    let in_plane = v - n * n.dot(v);
-    let e2 = n.cross(u0);
-    let alpha = in_plane.dot(&e2).atan2(in_plane.dot(u0));
-    if (0.0..=phi).contains(&alpha) {
-        n.dot(v).abs().asin().to_degrees().min(ends)
-    } else {
-        ends
     }
 }
 
@@ -209,12 +170,6 @@ fn check_pieces(
         a = *b;
     }
     worst
-}
-
-fn unit(theta: f64, phi: f64) -> Unit<Vector3<f64>> {
-    let (st, ct) = theta.to_radians().sin_cos();
-    let (sp, cp) = phi.to_radians().sin_cos();
-    Unit::new_normalize(Vector3::new(st * cp, st * sp, ct))
 }
 
 /// Runs densify on one move from `j0` to `j1`; returns the pieces and diagnostics.

@@ -5,9 +5,11 @@ use ncpost::front::gcode::{Options as GcodeOptions, parse_str};
 use ncpost::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target};
 use ncpost::machine::polar::Polar;
 use ncpost::motion::{Model, Planner, Timing, polar_point};
-use ncpost::passes::{self, Context, Output};
+use ncpost::passes::{self, Context};
 use ncpost::pipeline::Pipeline;
 use ncpost::preset::Preset;
+
+mod common;
 
 const CUBE: &str = include_str!("fixtures/extrude_rate/gcodenom_mini_cube_a_prusaslicer.gcode");
 
@@ -564,16 +566,7 @@ fn run_passes(specs: &[(&str, &str)], polar: &Polar, input: Vec<Block>) -> Vec<B
     let mut blocks = input;
     for (name, options) in specs {
         let opts: toml::Table = toml::from_str(options).expect("options");
-        let mut pass = passes::build(name, &opts, &ctx).expect("pass");
-        let mut out = Vec::new();
-        let mut diags = Vec::new();
-        {
-            let mut o = Output::new(&mut out, &mut diags);
-            for b in blocks {
-                pass.run(&mut vec![b], &mut o);
-            }
-            pass.finish(&mut o);
-        }
+        let (out, diags) = common::run_pass(name, &opts, &ctx, blocks);
         assert!(
             diags.iter().all(|d| d.severity != Severity::Error),
             "{diags:?}"

@@ -11,9 +11,11 @@ use ncpost::ir::{
     Target, dump,
 };
 use ncpost::machine::{Machine, ToolPose};
-use ncpost::passes::{self, Context, Output};
+use ncpost::passes::{self, Context};
 use ncpost::preset::Preset;
 use proptest::prelude::*;
+
+mod common;
 
 const PRESETS: [&str; 4] = ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"];
 
@@ -99,17 +101,7 @@ fn run(
         decimals: None,
         ..Context::default()
     };
-    let mut pass = passes::build(name, &opts, &ctx).expect("pass");
-    let mut out = Vec::new();
-    let mut diags = Vec::new();
-    {
-        let mut o = Output::new(&mut out, &mut diags);
-        for b in blocks {
-            pass.run(&mut vec![b], &mut o);
-        }
-        pass.finish(&mut o);
-    }
-    (out, diags)
+    common::run_pass(name, &opts, &ctx, blocks)
 }
 
 fn motion(b: &Block) -> &Motion {

@@ -322,7 +322,9 @@ fn circle_around_the_origin_turns_continuously() {
         .position(|t| (t + 360.0).abs() < 1e-6)
         .expect("the G2 ends at -360");
     assert!((thetas[thetas.len() - 1] - 360.0).abs() < 1e-3);
-    assert!(after_arc > 10);
+    // About the table's centre the arc is exact in r and θ: a few pieces, each under
+    // half a turn.
+    assert!(after_arc >= 3, "{after_arc}");
     // A circle off the centre that still contains it: θ wraps once, continuously.
     let mut src = String::from("G1 X35 Y0 F1800\n");
     for k in 1..=72 {

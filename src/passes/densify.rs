@@ -5,7 +5,7 @@
 //! straight line, and the tool axis does not turn along the great circle. This pass checks
 //! that path against the programmed segment (tip on the straight line from `FK(j0).tip` to
 //! `FK(j1).tip`, axis on the great-circle arc from `FK(j0).axis` to `FK(j1).axis`) and
-//! splits a move at its programmed midpoint until every piece is within tolerance.
+//! cuts a move that strays into as few pieces as the tolerances allow.
 //!
 //! # Why the check cannot miss a bump
 //! The check is not a plain sampling. For the tip `p(s)` of the joint-linear path, an upper
@@ -23,16 +23,34 @@
 //! soon as one sample is out of tolerance.
 //!
 //! # How a move is split
-//! At the programmed midpoint: the tip halfway along the line, the axis halfway along the
-//! arc, solved by inverse kinematics with the orientation and whole turns nearest the
+//! Into the longest pieces within tolerance, one after the other: from the start of the
+//! move (or of the piece before) the end of the next piece is searched along the
+//! programmed move, from the previous piece's length (or, for the first, from the
+//! curvature bound), doubling while the piece fits and then bisecting, until the piece's
+//! end is within 2 % of the longest that fits. Every piece end is a point of the programmed
+//! move: the tip at that fraction of the line, the axis at that fraction of the arc,
+//! solved by inverse kinematics with the orientation and whole turns nearest the
 //! interpolated rotary values, so the pieces stay on the branch the move is on (at a
-//! singular orientation the free rotary takes its interpolated value). A move that starts
+//! singular orientation the free rotary takes its interpolated value). Controllers plan a
+//! limited number of blocks a second, so every piece more than needed is a stutter:
+//! halving at midpoints, as first built, gave about 1.4 times the fewest pieces (each
+//! piece between a quarter and the whole of the allowed deviation); this gives within a
+//! few per cent of them (`scripts/bench-pieces.sh`, BENCHMARKS.md). A move that starts
 //! or ends at a singular orientation whose free rotary sits at another value than the
 //! other end needs (`ik` held the previous angle there) first turns that rotary on the
-//! spot, as halving could never take that swing out of the pieces next to the end. Every
+//! spot, as no cut could take that swing out of the pieces next to the end. Every
 //! piece is a copy of the move (span, feed, extra words) with its own target; the last
-//! one is the original block with its comments. After `max_depth` halvings a piece stays
-//! as it is and the move gets the warning `densify::depth`.
+//! one is the original block with its comments. Where no piece of at least `2^-max_depth`
+//! of the move fits, a piece of that length is kept as it is and the move gets the warning
+//! `densify::depth`.
+//!
+//! # The printed numbers
+//! The tolerances hold on the positions as printed: the backend rounds every axis to half
+//! a unit of its last decimal (`ctx.decimals`), which moves the tip by up to `√3` times
+//! the linear rounding plus the rotary rounding (radians) times the tip's distance from
+//! each rotary axis, and turns the tool axis by up to twice the rotary rounding. The
+//! check gets the tolerances less those amounts; tolerances finer than the printed
+//! decimals can hold are a settings error.
 //!
 //! Only linear moves (and rapids with `rapids = true`) from a position with all five
 //! machine axes known are checked; commands and lines that clobber axes make the next
@@ -48,6 +66,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, Motion, MotionKind, Span, Target};
 use crate::machine::angle::near_turn;
 use crate::machine::{Machine, PathEnd, ToolPose};
+use crate::num::print::Decimals;
 
 /// Options of `densify`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -57,8 +76,9 @@ pub struct Options {
     pub tip_tolerance: f64,
     /// Largest angle between the tool axis and the programmed great-circle arc, degrees.
     pub axis_tolerance: f64,
-    /// Most halvings of one move (at most `2^max_depth` pieces); beyond it the piece is
-    /// kept as it is, with a warning.
+    /// The shortest piece is `2^-max_depth` of its move (so at most `2^max_depth` pieces);
+    /// where a shorter one would be needed, a piece of that length is kept as it is, with
+    /// a warning.
     pub max_depth: u32,
     /// Split rapids too (by default a rapid's path is not checked).
     pub rapids: bool,
@@ -99,7 +119,8 @@ pub const INFO: PassInfo = PassInfo {
     summary: "split joint moves until the joint-linear path stays within tolerance of the programmed tip line and tool-axis arc",
     build: |t, ctx| {
         let machine = ctx.require_machine("densify")?;
-        Ok(Box::new(Densify::new(machine.clone(), super::options(t)?)?))
+        let pass = Densify::new(machine.clone(), super::options(t)?)?;
+        Ok(Box::new(pass.printed_with(ctx.decimals)?))
     },
     defaults: || super::to_toml(&Options::default()),
 };
@@ -111,6 +132,10 @@ const SINGULAR_DEG: f64 = 1e-6;
 /// Bisection levels of one check before a move is treated as out of tolerance; only a
 /// deviation within rounding of the tolerance gets that deep.
 const CHECK_LEVELS: u8 = 20;
+
+/// How close to the longest piece within tolerance the search for a piece's end gets, as
+/// a share of the piece's length: a piece is at most 2 % shorter than it could be.
+const PRECISION: f64 = 0.02;
 
 /// A joint position with its five machine axes and tool pose.
 #[derive(Debug, Clone)]
@@ -225,6 +250,50 @@ impl AxisArc {
     }
 }
 
+/// The end of the longest piece within tolerance from parameter `s0` of a move (whose
+/// end, at 1, is known to be beyond tolerance from `s0`): `probe(s)` gives the piece's end
+/// at `s` when the piece from `s0` to it fits. The search starts at `s0 + step`, doubles
+/// the piece while it fits and then bisects, until the end found is within [`PRECISION`]
+/// of the piece's length from the shortest end known not to fit. `None` when no piece
+/// of at least `min_step` fits. `densify` and `polar-ik` (on arcs) cut moves with it.
+pub(crate) fn longest_piece<N>(
+    s0: f64,
+    step: f64,
+    min_step: f64,
+    mut probe: impl FnMut(f64) -> Option<N>,
+) -> Option<(f64, N)> {
+    let rest = 1.0 - s0;
+    let mut hi = 1.0;
+    let mut lo: Option<(f64, N)> = None;
+    let mut s = (s0 + step.max(min_step)).min(s0 + 0.5 * rest);
+    // Each round halves the bracket or doubles the piece: 64 rounds reach the last bit.
+    for _ in 0..64 {
+        if let Some(n) = probe(s) {
+            let done = hi - s <= (s - s0) * PRECISION;
+            lo = Some((s, n));
+            if done {
+                break;
+            }
+            s = (s0 + 2.0 * (s - s0)).min(0.5 * (s + hi));
+        } else {
+            hi = s;
+            let base = lo.as_ref().map_or(s0, |l| l.0);
+            if hi - s0 < min_step || (lo.is_some() && hi - base <= (base - s0) * PRECISION) {
+                break;
+            }
+            s = 0.5 * (base + hi);
+        }
+    }
+    lo.filter(|(s, _)| s - s0 >= min_step)
+}
+
+/// Puts out a copy of `motion` (span, feed, extra words) ending at `node`.
+fn piece(motion: &Motion, span: Span, node: &Node, out: &mut Output<'_>) {
+    let mut p = motion.clone();
+    p.target = Target::Joints(node.joints);
+    out.push(Block::new(span, BlockKind::Motion(p)));
+}
+
 fn any_perpendicular(v: &Vector3<f64>) -> Vector3<f64> {
     let helper = if v.x.abs() < 0.9 {
         Vector3::x()
@@ -239,8 +308,12 @@ pub struct Densify {
     machine: Machine,
     options: Options,
     axes: [Axis; 2],
+    /// The axis tolerance left after the print rounding of the rotaries, radians.
     axis_tol: f64,
     sin_axis_tol: f64,
+    /// How far a printed value may lie from the computed one: half a unit of the last
+    /// printed decimal of a linear axis (mm) and of a rotary (radians); 0 unprinted.
+    rounding: [f64; 2],
     /// The last emitted position.
     prev: Joints,
     /// Its five machine axes and pose (when all are known) sit in `nodes[prev_slot]`; a
@@ -261,11 +334,53 @@ impl Densify {
             machine,
             axis_tol,
             sin_axis_tol: axis_tol.sin(),
+            rounding: [0.0; 2],
             options,
             prev: Joints::default(),
             nodes: [None, None],
             prev_slot: 0,
         })
+    }
+
+    /// The same pass for a backend that prints with `decimals`: the tolerances hold on
+    /// the printed positions, which the rounding moves by up to half a unit of the last
+    /// decimal in each axis. An error when a tolerance is finer than that can hold.
+    pub fn printed_with(mut self, decimals: Option<Decimals>) -> Result<Densify, Diagnostic> {
+        let Some(d) = decimals else {
+            return Ok(self);
+        };
+        let half = |places: u8| 0.5 * 10f64.powi(-i32::from(places));
+        self.rounding = [half(d.linear), half(d.rotary).to_radians()];
+        // Each rotary turns the tool axis by up to its rounding.
+        self.axis_tol = self.options.axis_tolerance.to_radians() - 2.0 * self.rounding[1];
+        self.sin_axis_tol = self.axis_tol.sin();
+        if self.axis_tol <= 0.0 || self.options.tip_tolerance <= self.rounding[0] * 3f64.sqrt() {
+            return Err(Diagnostic::settings(format!(
+                "densify tolerances ({} mm, {} degrees) are finer than the printed positions \
+                 ({} and {} decimals) can hold: raise them or print more decimals",
+                self.options.tip_tolerance, self.options.axis_tolerance, d.linear, d.rotary
+            )));
+        }
+        Ok(self)
+    }
+
+    /// How far the print rounding may move the tool tip on the joint-linear path from
+    /// `a` to `b`, mm. The rounding of each end is interpolated along the path like the
+    /// joints, so it is within the rounding everywhere: X, Y, Z move the tip by up to
+    /// `√3` times theirs, and a rotary turned by `δ` moves it by `δ` times its distance
+    /// from that rotary's axis, which along the piece stays below the larger of the
+    /// ends' distances plus how far the piece goes.
+    fn print_error(&self, a: &Node, b: &Node) -> f64 {
+        let [lin, rot] = self.rounding;
+        if rot == 0.0 && lin == 0.0 {
+            return 0.0;
+        }
+        let reach = |i: usize| a.at.reach[i].max(b.at.reach[i]);
+        let travel = (Vector3::from(b.at.xyz) - Vector3::from(a.at.xyz)).norm()
+            + (0..2)
+                .map(|i| (b.at.angles[i] - a.at.angles[i]).abs().to_radians() * reach(i))
+                .sum::<f64>();
+        lin * 3f64.sqrt() + rot * (reach(0) + reach(1) + 2.0 * travel)
     }
 
     /// The five machine axes of `joints`, when all are known.
@@ -345,7 +460,7 @@ impl Densify {
     /// Whether the joint-linear path from `a` to `b` stays within tolerance of the
     /// programmed segment (see the module documentation for why this is a proof).
     fn within(&self, a: &Node, b: &Node) -> bool {
-        let tol = self.options.tip_tolerance;
+        let tol = self.options.tip_tolerance - self.print_error(a, b);
         let (tip_accel, axis_accel) = self.machine.path_bounds(&a.at, &b.at);
         // The loop's first test, on the whole move (both ends on the programmed path):
         // most CL steps pass it, and then need neither the segment nor the arc.
@@ -384,8 +499,23 @@ impl Densify {
         true
     }
 
-    /// The orientation for `axis` nearest the interpolated rotary values `target`.
-    fn orientation(&self, axis: Unit<Vector3<f64>>, target: [f64; 2]) -> [f64; 2] {
+    /// Whether the rotary values `angles` are within the rotaries' travel.
+    fn in_travel(&self, angles: [f64; 2]) -> bool {
+        (0..2).all(|k| {
+            self.machine
+                .limits(self.axes[k])
+                .is_none_or(|(lo, hi)| (lo - 1e-9..=hi + 1e-9).contains(&angles[k]))
+        })
+    }
+
+    /// The orientation for `axis` nearest the interpolated rotary values `target` (within
+    /// the rotaries' travel where a solution is, when `keep_travel`).
+    fn orientation(
+        &self,
+        axis: Unit<Vector3<f64>>,
+        target: [f64; 2],
+        keep_travel: bool,
+    ) -> [f64; 2] {
         let m = &self.machine;
         let sols = m.inverse(axis);
         let singular = sols.iter().any(|o| o.free.is_some())
@@ -404,7 +534,13 @@ impl Densify {
                 near_turn(o.angles[0], target[0]),
                 near_turn(o.angles[1], target[1]),
             ];
-            let cost = (a[0] - target[0]).powi(2) + (a[1] - target[1]).powi(2);
+            let mut cost = (a[0] - target[0]).powi(2) + (a[1] - target[1]).powi(2);
+            // A solution past a rotary's travel only where there is no other: the pieces
+            // of a move within travel (that `ik` took across a branch change, say) must
+            // not leave the machine's range.
+            if keep_travel && !self.in_travel(a) {
+                cost += 1e12;
+            }
             if best.is_none_or(|(_, c)| cost < c) {
                 best = Some((a, cost));
             }
@@ -414,21 +550,30 @@ impl Densify {
         best.map_or(target, |(a, _)| a)
     }
 
-    /// The position at the programmed midpoint between `a` and `b`.
-    fn midpoint(&self, a: &Node, b: &Node) -> Node {
+    /// The position at fraction `s` of the programmed move from `a` to `b` (whose
+    /// tool-axis arc is `arc`): the tip on the line, the axis on the arc, the rotaries
+    /// nearest their values interpolated from `from` (the piece's start, at its fraction,
+    /// so the pieces follow the branch the path is on even where the rotaries swing
+    /// unevenly, near a singular orientation) to `b`, and every other axis interpolated.
+    fn node_on(&self, a: &Node, b: &Node, arc: &AxisArc, s: f64, from: &(f64, Node)) -> Node {
         let (ta, tb) = (self.pose(a).tip, self.pose(b).tip);
-        let tip = ta + (tb - ta) * 0.5;
-        let axis = self.arc(a, b).slerp(0.5);
-        let target = [
-            0.5 * (a.at.angles[0] + b.at.angles[0]),
-            0.5 * (a.at.angles[1] + b.at.angles[1]),
-        ];
-        let angles = self.orientation(axis, target);
+        let tip = ta + (tb - ta) * s;
+        let axis = arc.slerp(s);
+        let l = |p: f64, q: f64| p + (q - p) * s;
+        let u = if from.0 < 1.0 {
+            (s - from.0) / (1.0 - from.0)
+        } else {
+            1.0
+        };
+        let lf = |k: usize| from.1.at.angles[k] + (b.at.angles[k] - from.1.at.angles[k]) * u;
+        let target = [lf(0), lf(1)];
+        let keep_travel = self.in_travel(a.at.angles) && self.in_travel(b.at.angles);
+        let angles = self.orientation(axis, target, keep_travel);
         let xyz = self.machine.linear(&tip, angles);
         let mut joints = b.joints;
         for ax in b.joints.known.iter() {
             match a.joints.get(ax) {
-                Some(v) => joints.values[ax.index()] = 0.5 * (v + b.joints.values[ax.index()]),
+                Some(v) => joints.values[ax.index()] = l(v, b.joints.values[ax.index()]),
                 None => joints.forget(std::iter::once(ax).collect()),
             }
         }
@@ -440,35 +585,98 @@ impl Densify {
         self.node_at(joints, xyz, angles)
     }
 
-    /// Emits the pieces from `a` to `b` (the last one only when `last` is false: the
-    /// caller emits the original block there). `depth` halvings made so far.
-    #[allow(clippy::too_many_arguments)]
-    fn refine(
+    /// Emits the pieces of the move from `a` to `b` but its last (the caller puts out
+    /// the original block there); true when a piece had to stay out of tolerance.
+    fn split_move(
         &self,
         motion: &Motion,
         span: Span,
         a: &Node,
         b: &Node,
-        depth: u32,
-        last: bool,
-        hit_limit: &mut bool,
         out: &mut Output<'_>,
-    ) {
-        let ok = self.within(a, b);
-        if ok || depth >= self.options.max_depth {
-            *hit_limit |= !ok;
-            if !last {
-                let mut piece = motion.clone();
-                piece.target = Target::Joints(b.joints);
-                out.push(Block::new(span, BlockKind::Motion(piece)));
+    ) -> bool {
+        match self.turn_on_the_spot(a, b) {
+            Some(m) => {
+                let deep = self.cut(motion, span, a, &m, out);
+                piece(motion, span, &m, out);
+                self.cut(motion, span, &m, b, out) | deep
             }
-            return;
+            None => self.cut(motion, span, a, b, out),
         }
-        let m = self
-            .turn_on_the_spot(a, b)
-            .unwrap_or_else(|| self.midpoint(a, b));
-        self.refine(motion, span, a, &m, depth + 1, false, hit_limit, out);
-        self.refine(motion, span, &m, b, depth + 1, last, hit_limit, out);
+    }
+
+    /// Cuts the programmed move from `a` to `b` into the longest pieces within tolerance
+    /// and puts out every piece of `motion` but the last (ending at `b`); true when a
+    /// piece had to stay out of tolerance (shorter than `2^-max_depth` of the move).
+    fn cut(&self, motion: &Motion, span: Span, a: &Node, b: &Node, out: &mut Output<'_>) -> bool {
+        let arc = self.arc(a, b);
+        let min_step = 0.5f64.powi(self.options.max_depth as i32);
+        let mut deep = false;
+        let mut cur = (0.0, a.clone());
+        let mut last_len: Option<f64> = None;
+        let mut fits_rest = self.within(a, b);
+        while !fits_rest {
+            let (s, node, fits) = self.longest(a, b, &arc, &cur, last_len, min_step);
+            deep |= !fits;
+            if s >= 1.0 {
+                break;
+            }
+            fits_rest = self.within(&node, b);
+            if fits_rest && fits {
+                // The last two pieces share the rest evenly, rather than the longest
+                // piece and a sliver after it.
+                let even = self.node_on(a, b, &arc, 0.5 * (cur.0 + 1.0), &cur);
+                if self.within(&cur.1, &even) && self.within(&even, b) {
+                    piece(motion, span, &even, out);
+                    break;
+                }
+            }
+            piece(motion, span, &node, out);
+            last_len = Some(s - cur.0);
+            cur = (s, node);
+        }
+        deep
+    }
+
+    /// The longest piece from `cur` (at fraction `cur.0` of the move from `a` to `b`)
+    /// within tolerance ([`longest_piece`]): its end's fraction and node, and true; or,
+    /// when no piece of at least `min_step` fits, the piece of `min_step` and false. The
+    /// search starts from the previous piece's length `guess` (pieces along one move
+    /// change length slowly) or else from the curvature bound.
+    fn longest(
+        &self,
+        a: &Node,
+        b: &Node,
+        arc: &AxisArc,
+        cur: &(f64, Node),
+        guess: Option<f64>,
+        min_step: f64,
+    ) -> (f64, Node, bool) {
+        let s0 = cur.0;
+        let step = guess.unwrap_or_else(|| {
+            // The bound of a piece grows with the square of its length; it overstates
+            // the deviation, so this is about the shortest fitting length.
+            let (tip, axis) = self.machine.path_bounds(&cur.1.at, &b.at);
+            let ratio =
+                (tip / (8.0 * self.options.tip_tolerance)).max(axis / (8.0 * self.sin_axis_tol));
+            (1.0 - s0) / ratio.sqrt().max(1.0)
+        });
+        let probe = |s: f64| {
+            let n = self.node_on(a, b, arc, s, cur);
+            self.within(&cur.1, &n).then_some(n)
+        };
+        match longest_piece(s0, step, min_step, probe) {
+            Some((s, n)) => (s, n, true),
+            None => {
+                let s = (s0 + min_step).min(1.0);
+                let n = if s >= 1.0 {
+                    b.clone()
+                } else {
+                    self.node_on(a, b, arc, s, cur)
+                };
+                (s, n, false)
+            }
+        }
     }
 
     /// At a singular end the free rotary's value is arbitrary, and the other end's branch
@@ -587,22 +795,15 @@ impl Densify {
         };
         let end_slot = 1 - self.prev_slot;
         if let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot]) {
-            let mut hit_limit = false;
-            if self.options.max_depth == 0 {
-                hit_limit = true;
-            } else {
-                let mid = self
-                    .turn_on_the_spot(a, b)
-                    .unwrap_or_else(|| self.midpoint(a, b));
-                self.refine(m, block.span, a, &mid, 1, false, &mut hit_limit, out);
-                self.refine(m, block.span, &mid, b, 1, true, &mut hit_limit, out);
-            }
+            let hit_limit =
+                self.options.max_depth == 0 || self.split_move(m, block.span, a, b, out);
             if hit_limit {
                 out.diag(
                     Diagnostic::warning(
                         "densify::depth",
                         format!(
-                            "the move is still off the programmed path after {} halvings",
+                            "a piece of this move stays off the programmed path: pieces would \
+                             have to be shorter than 2^-{} of the move",
                             self.options.max_depth
                         ),
                     )

@@ -1,11 +1,15 @@
 //! Helpers shared by the integration tests (`mod common;`).
 
+#[allow(dead_code)]
+pub mod deviation;
+
 use ncpost::diag::Diagnostic;
 use ncpost::ir::Block;
 use ncpost::passes::{self, Context, Output};
 
 /// Runs `blocks` through the passes given as `name:k=v` specs, each with `finish`, in a
 /// context without a machine.
+#[allow(dead_code)]
 pub fn run_passes(blocks: Vec<Block>, specs: &[&str]) -> (Vec<Block>, Vec<Diagnostic>) {
     let mut diags = Vec::new();
     let mut cur = blocks;
@@ -20,4 +24,26 @@ pub fn run_passes(blocks: Vec<Block>, specs: &[&str]) -> (Vec<Block>, Vec<Diagno
         cur = next;
     }
     (cur, diags)
+}
+
+/// Runs pass `name` with `options` in `ctx` over `blocks` one block at a time, as a stream,
+/// then `finish`.
+#[allow(dead_code)]
+pub fn run_pass(
+    name: &str,
+    options: &toml::Table,
+    ctx: &Context,
+    blocks: Vec<Block>,
+) -> (Vec<Block>, Vec<Diagnostic>) {
+    let mut pass = passes::build(name, options, ctx).expect("pass");
+    let mut out = Vec::new();
+    let mut diags = Vec::new();
+    {
+        let mut o = Output::new(&mut out, &mut diags);
+        for b in blocks {
+            pass.run(&mut vec![b], &mut o);
+        }
+        pass.finish(&mut o);
+    }
+    (out, diags)
 }

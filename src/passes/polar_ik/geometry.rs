@@ -55,7 +55,7 @@ pub fn error_bound(a: &PolarPoint, b: &PolarPoint) -> f64 {
 }
 
 /// The signed angle from `a` to `b`, in `(−π, π]`.
-fn angle_between(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+pub(super) fn angle_between(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
     (a.x * b.y - a.y * b.x).atan2(a.dot(b))
 }
 

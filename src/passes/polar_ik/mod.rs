@@ -68,17 +68,31 @@
 //! # Other axes and blocks
 //! Z, E and every other axis are interpolated along each split move in proportion to its
 //! XY parameter (equal to the length fraction), the last piece ending at the exact target,
-//! so the total E is unchanged. Arcs (G2/G3, any plane, helical, extra turns) are first
-//! cut into chords within half the `tolerance` of the arc, and the polar path is then
-//! held within the other half of the chords: within `tolerance` of the arc in all. `center` is the input XY point that sits on the table's
-//! axis. G92 offsets on X or Y are dropped with a warning (the table centre is the
-//! origin); commands that make X or Y unknown make r and θ unknown.
+//! so the total E is unchanged. Arcs in the XY plane (G17; helical, spirals and extra
+//! turns too) are cut straight into polar pieces whose ends lie on the arc, each the
+//! longest whose joint-linear path stays within `tolerance` of the arc itself (`arcs`:
+//! a proof by a bound of the radial gap's second derivative with samples, then doubling
+//! and bisection on the piece's end). Arcs in another plane, and the rare arc that
+//! passes within 0.001 mm of the table's centre (where θ is undefined), are first cut
+//! into chords within half the `tolerance`, the polar path then held within the other
+//! half of the chords. `center` is the input XY point that sits on the table's axis.
+//! G92 offsets on X or Y are dropped with a warning (the table centre is the origin);
+//! commands that make X or Y unknown make r and θ unknown. The input position is followed
+//! with [`crate::ir::Tracker`], as in every pass: a G92 that declares an unknown axis (E0
+//! at the start of a print) makes it known, so the next move's pieces share its E.
+//!
+//! # The printed numbers
+//! The tolerance holds on r and θ as printed: the backend rounds them to half a unit of
+//! their last decimal, which moves the nozzle by up to the r rounding plus `r_max` times
+//! the θ rounding in radians (0.00018 mm at the preset's 4 decimals), so the pieces get
+//! the tolerance less that.
 //!
 //! `kinematics = "controller"` is for firmware that does polar kinematics itself
 //! (RepRapFirmware `M669 K7`, Klipper `kinematics: polar`, Marlin `POLAR`): XY are kept and
 //! only arcs are cut into chords, so later passes (extrusion rate, valve timing) see straight
 //! segments.
 
+mod arcs;
 mod geometry;
 mod moves;
 
@@ -87,9 +101,10 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Span};
+use crate::ir::{Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Span, Tracker};
 use crate::machine::FeedRule;
 use crate::machine::polar::{OriginPolicy, Polar};
+use crate::num::print::Decimals;
 
 pub use geometry::{MAX_ARC_CHORDS, Piece, PolarPoint, arc_points, error_bound, plan};
 
@@ -172,7 +187,9 @@ pub const INFO: PassInfo = PassInfo {
                 ));
             }
         };
-        Ok(Box::new(PolarIk::new(polar, options)?))
+        Ok(Box::new(
+            PolarIk::new(polar, options)?.printed_with(ctx.decimals)?,
+        ))
     },
     defaults: || super::to_toml(&Options::default()),
 };
@@ -189,12 +206,14 @@ pub struct PolarIk {
     polar: Polar,
     options: Options,
     policy: OriginPolicy,
-    /// The last input target (IR frame).
-    pos: Joints,
+    /// The input position (IR frame), followed as every pass follows it.
+    track: Tracker,
     /// The machine's polar position after the last emitted move, if known.
     node: Option<PolarPoint>,
     /// `min(ω_max, 1.24 √α_max)`, 1/s.
     cap_rate: f64,
+    /// The tolerance the pieces get: what the print rounding of their ends leaves.
+    tolerance: f64,
 }
 
 impl PolarIk {
@@ -213,11 +232,44 @@ impl PolarIk {
         Ok(PolarIk {
             policy: checked.origin_policy(),
             cap_rate: omega.min(ALPHA_FACTOR * alpha.sqrt()),
+            tolerance: options.tolerance,
             polar,
             options,
-            pos: Joints::default(),
+            track: Tracker::default(),
             node: None,
         })
+    }
+
+    /// The same pass for a backend that prints with `decimals`: the tolerance holds on
+    /// the printed positions. Printing rounds r and θ by up to half a unit of their last
+    /// decimal, which moves the nozzle by up to the r rounding plus `r_max` times the θ
+    /// rounding (radians), all along a piece (the rounding of its ends is interpolated
+    /// like the joints); under `kinematics = "controller"` X, Y and Z are printed, by up to
+    /// `√3` times their rounding. The pieces get the tolerance less that; an error when
+    /// nothing is left.
+    pub fn printed_with(mut self, decimals: Option<Decimals>) -> Result<PolarIk, Diagnostic> {
+        let Some(d) = decimals else {
+            return Ok(self);
+        };
+        let half = |axis: Axis| 0.5 * 10f64.powi(-i32::from(d.axis(axis)));
+        let rounding = match self.options.kinematics {
+            Kinematics::Post => {
+                half(self.polar.r_axis)
+                    + self.polar.r_max * half(self.polar.theta_axis).to_radians()
+            }
+            Kinematics::Controller => {
+                half(Axis::X).max(half(Axis::Y)).max(half(Axis::Z)) * 3f64.sqrt()
+            }
+        };
+        self.tolerance = self.options.tolerance - rounding;
+        if self.tolerance <= 0.0 {
+            return Err(Diagnostic::settings(format!(
+                "polar-ik tolerance {} mm is finer than the printed positions can hold \
+                 ({rounding:.6} mm): raise the tolerance or print more decimals",
+                self.options.tolerance
+            )));
+        }
+        Ok(self)
     }
 
     fn xy(&self, j: &Joints) -> Option<Vector2<f64>> {
@@ -312,8 +364,8 @@ impl PolarIk {
     /// A line (homing, a macro...) makes `clobbers` unknown: the position forgets them;
     /// returns them as the output names them (r and θ for X and Y).
     fn clobbered(&mut self, clobbers: AxisSet) -> AxisSet {
-        self.pos.forget(clobbers);
-        if self.xy(&self.pos).is_none() {
+        self.track.forget(clobbers);
+        if self.xy(self.track.pos()).is_none() {
             self.node = None;
         }
         self.map_axes(clobbers)
@@ -384,6 +436,9 @@ impl PolarIk {
                         return;
                     }
                 }
+                // The controller knows an axis a G92 declares (E0 at the start of a
+                // print): the pieces of the next move interpolate it from there.
+                self.track.offset(&o);
                 out.push(Block {
                     kind: BlockKind::Offset(o),
                     ..block

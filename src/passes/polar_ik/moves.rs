@@ -25,9 +25,10 @@ struct Line {
     tolerance: f64,
 }
 
-/// The share of the tolerance each of the two cuts of an arc gets: the chords stray from
-/// the arc and the polar path from the chords, so each gets half, and the polar path
-/// stays within the whole tolerance of the arc.
+/// The share of the tolerance each of the two cuts of an arc that goes the way of chords
+/// gets (another plane, or passing the table's centre; see `arcs` for the others): the
+/// chords stray from the arc and the polar path from the chords, so each gets half, and
+/// the polar path stays within the whole tolerance of the arc.
 const ARC_SHARE: f64 = 0.5;
 
 impl PolarIk {
@@ -42,7 +43,7 @@ impl PolarIk {
         tolerance: f64,
         out: &mut Output<'_>,
     ) -> Option<Vec<Joints>> {
-        match arc_points(&self.pos, to, arc, tolerance) {
+        match arc_points(self.track.pos(), to, arc, tolerance) {
             Ok(points) => Some(points),
             Err(needed) => {
                 out.diag(
@@ -60,7 +61,7 @@ impl PolarIk {
                          is most likely a typo), or raise polar-ik's tolerance",
                     ),
                 );
-                self.pos = *to;
+                self.track.set_pos(*to);
                 None
             }
         }
@@ -72,15 +73,15 @@ impl PolarIk {
             && let (MotionKind::Arc(arc), &Target::Joints(to)) = (m.kind, &m.target)
         {
             let (a1, a2, _) = arc.plane.axes();
-            if self.pos.known.contains(a1) && self.pos.known.contains(a2) {
-                let Some(points) =
-                    self.chords_or_error(&block, &to, &arc, self.options.tolerance, out)
+            let from = *self.track.pos();
+            if from.known.contains(a1) && from.known.contains(a2) {
+                let Some(points) = self.chords_or_error(&block, &to, &arc, self.tolerance, out)
                 else {
                     return;
                 };
                 let n = points.len();
-                let total = arc_length(&self.pos, &points);
-                let mut prev = self.pos;
+                let total = arc_length(&from, &points);
+                let mut prev = from;
                 for (i, p) in points.into_iter().enumerate() {
                     let mut piece = m.clone();
                     piece.kind = MotionKind::Linear;
@@ -93,28 +94,12 @@ impl PolarIk {
                     }
                     out.push(b);
                 }
-                self.pos = to;
+                self.track.set_pos(to);
                 return;
             }
         }
-        self.track(&block);
+        self.track.update(&block);
         out.push(block);
-    }
-
-    /// Follows the input position through a block that is passed on unchanged.
-    fn track(&mut self, block: &Block) {
-        match &block.kind {
-            BlockKind::Motion(m) => match m.target.joints() {
-                Some(j) if !m.machine_frame => self.pos = *j,
-                _ => self.pos.forget(m.written),
-            },
-            BlockKind::Command(c) => self.pos.forget(c.clobbers),
-            BlockKind::Verbatim(v) => self.pos.forget(v.clobbers),
-            _ => {}
-        }
-        if self.xy(&self.pos).is_none() {
-            self.node = None;
-        }
     }
 
     /// A motion block (`block` holds its span and comments, `m` the motion).
@@ -138,15 +123,22 @@ impl PolarIk {
             self.move_without_xy(block, m, &to, out);
             return;
         };
-        let from = self.pos;
+        let from = *self.track.pos();
         let (Some(_), Some(node)) = (self.xy(&from), self.node) else {
             self.first_point(block, m, &to, p1, out);
             return;
         };
+        if let MotionKind::Arc(arc) = m.kind
+            && let Some(shape) = self.direct_arc(&from, &to, &arc)
+        {
+            self.node = Some(self.arc_move(&block, &m, &shape, node, out));
+            self.track.set_pos(to);
+            return;
+        }
         let chords;
         let points: &[Joints] = match m.kind {
             MotionKind::Arc(arc) => {
-                let tolerance = ARC_SHARE * self.options.tolerance;
+                let tolerance = ARC_SHARE * self.tolerance;
                 let Some(points) = self.chords_or_error(&block, &to, &arc, tolerance, out) else {
                     return;
                 };
@@ -165,7 +157,7 @@ impl PolarIk {
             node = self.line(&block, &m, (&start, p), node, total, last, out);
             start = *p;
         }
-        self.pos = to;
+        self.track.set_pos(to);
         self.node = Some(node);
     }
 
@@ -178,7 +170,7 @@ impl PolarIk {
             )
             .at_span(block.span),
         );
-        self.pos.forget(m.written);
+        self.track.motion(&m);
         self.node = None;
         m.written = self.map_axes(m.written);
         if let Some(j) = m.target.joints_mut() {
@@ -206,7 +198,7 @@ impl PolarIk {
             j.forget(AxisSet::from_iter([Axis::X, Axis::Y]));
         }
         m.written = m.written.difference(AxisSet::from_iter([Axis::X, Axis::Y]));
-        self.pos = *to;
+        self.track.set_pos(*to);
         self.node = None;
         out.push(Block {
             kind: BlockKind::Motion(m),
@@ -240,7 +232,7 @@ impl PolarIk {
         m.target = Target::Joints(self.emitted(to, &p));
         m.written = self.map_axes(m.written);
         self.check_reach(&p, block.span, out);
-        self.pos = *to;
+        self.track.set_pos(*to);
         self.node = Some(p);
         out.push(Block {
             kind: BlockKind::Motion(m),
@@ -286,8 +278,8 @@ impl PolarIk {
             cart_len: xy_len.hypot(dz),
             speed,
             tolerance: match m.kind {
-                MotionKind::Arc(_) => ARC_SHARE * self.options.tolerance,
-                _ => self.options.tolerance,
+                MotionKind::Arc(_) => ARC_SHARE * self.tolerance,
+                _ => self.tolerance,
             },
         };
         let pieces = self.pieces_of(&line, node, rapid, block, out);
@@ -374,18 +366,23 @@ impl PolarIk {
             &mut pieces,
         );
         if deep {
-            out.diag(
-                Diagnostic::warning(
-                    "polar-ik::depth",
-                    format!(
-                        "a piece of this move stays beyond tolerance: pieces would have to be shorter than 2^-{} of the move",
-                        self.options.max_depth
-                    ),
-                )
-                .at_span(block.span),
-            );
+            self.warn_depth(block, out);
         }
         pieces
+    }
+
+    /// The warning for a move that keeps a piece beyond tolerance (`max_depth`).
+    pub(super) fn warn_depth(&self, block: &Block, out: &mut Output<'_>) {
+        out.diag(
+            Diagnostic::warning(
+                "polar-ik::depth",
+                format!(
+                    "a piece of this move stays beyond tolerance: pieces would have to be shorter than 2^-{} of the move",
+                    self.options.max_depth
+                ),
+            )
+            .at_span(block.span),
+        );
     }
 
     /// Seconds the piece `piece` of `line` (after parameter `prev_s`, polar position
@@ -447,7 +444,7 @@ fn split_time_feed(feed: &Feed, a: &Joints, b: &Joints, total: f64) -> Feed {
 }
 
 /// Distance from the centre to the segment `a`–`b`.
-fn segment_distance(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+pub(super) fn segment_distance(a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
     let d = b - a;
     let len2 = d.norm_squared();
     if len2 == 0.0 {
