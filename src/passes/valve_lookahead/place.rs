@@ -8,6 +8,9 @@ use crate::ir::{AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Span}
 use super::window::{Item, Kind, micros};
 use super::{Output, SETTLE_ROUNDS, SETTLE_TOL, SPLIT_EPS, ValveLookahead, WARN_TOL};
 
+/// A change of a command's time that stands for a jump, not a slope, seconds.
+const JUMP_S: f64 = 1e-3;
+
 /// A valve command to place.
 #[derive(Debug, Clone)]
 pub(super) struct Event {
@@ -356,6 +359,8 @@ impl ValveLookahead {
 
     /// Moves every held command until its time to its target is the delay.
     pub(super) fn settle(&mut self, out: &mut Output<'_>) {
+        // Commands put back at their best placement, which the rounds leave alone.
+        let mut settled = Vec::new();
         for _ in 0..SETTLE_ROUNDS {
             let ids: Vec<u64> = self
                 .queue
@@ -368,11 +373,16 @@ impl ValveLookahead {
                 .collect();
             let mut changed = false;
             for id in ids {
+                if settled.contains(&id) {
+                    continue;
+                }
                 let Some(error) = self.error_of(id) else {
                     continue;
                 };
                 changed = true;
-                self.fix(id, error, out);
+                if self.fix(id, error, out) {
+                    settled.push(id);
+                }
             }
             if !changed {
                 return;
@@ -381,14 +391,16 @@ impl ValveLookahead {
     }
 
     /// Moves event `id`'s command (or changes its dwell) by `error` seconds.
-    fn fix(&mut self, id: u64, error: f64, out: &mut Output<'_>) {
+    /// True when the command went back to the best placement found before (its error
+    /// grew after a step): settling it further would circle.
+    fn fix(&mut self, id: u64, error: f64, out: &mut Output<'_>) -> bool {
         // An open's own dwell takes the error first.
         if let Some(d) = self.owned_dwell(id)
             && let Kind::Dwell { seconds, .. } = self.queue.items[d].kind
             && seconds - error > 0.0
         {
             self.set_dwell(d, id, seconds - error);
-            return;
+            return false;
         }
         // Later commands placed before this one's target (an open that follows a close
         // at once) are taken out and placed again after it, so the order holds.
@@ -412,6 +424,7 @@ impl ValveLookahead {
             self.undo_marker(l);
         }
         self.undo(id);
+        let mut went_back = false;
         if let Some(e) = self.queue.events.get_mut(&id) {
             // Secant step on error(corr): a split can add a corner (the printed split
             // point is rounded), so the command's time does not move 1:1 with the wish.
@@ -424,8 +437,25 @@ impl ValveLookahead {
             } else {
                 1.0
             };
+            // The last step crossed the delay within a millisecond and landed further
+            // off: a split there snaps to a block's end, so the time jumps over the
+            // delay. The better side of the jump is as close as the command can come.
+            let back = match e.last {
+                Some((c1, e1))
+                    if e1.signum() != error.signum()
+                        && e1.abs() < error.abs()
+                        && (e.corr - c1).abs() < JUMP_S =>
+                {
+                    Some(c1)
+                }
+                _ => None,
+            };
             e.last = Some((e.corr, error));
-            e.corr -= error / slope;
+            match back {
+                Some(corr) => e.corr = corr,
+                None => e.corr -= error / slope,
+            }
+            went_back = back.is_some();
         }
         // Re-placing repeats no warning.
         self.queue.replacing = true;
@@ -434,6 +464,7 @@ impl ValveLookahead {
             self.place(l, out);
         }
         self.queue.replacing = false;
+        went_back
     }
 
     /// Creates and places an event.
