@@ -30,7 +30,9 @@ use ncpost::preset::{Emit, Preset};
 
 #[path = "../tests/common/mod.rs"]
 mod common;
-use common::deviation::{arc_angle, arc_distance, segment_distance, segment_distance_xy, unit};
+use common::geometry::{
+    angle_to_arc, arc_distance, distance_to_segment, segment_distance_xy, unit,
+};
 
 /// Samples per piece when checking a piece of the reference or of the pass's output.
 const SAMPLES: usize = 96;
@@ -218,8 +220,8 @@ impl FiveAxis {
                 &[l(x0[0], x1[0]), l(x0[1], x1[1]), l(x0[2], x1[2])],
                 [l(r0[0], r1[0]), l(r0[1], r1[1])],
             );
-            let tip = segment_distance(&pose.tip, &cl0.tip, &cl1.tip) / self.tip_tol;
-            let axis = arc_angle(&pose.axis, &cl0.axis, &cl1.axis) / self.axis_tol;
+            let tip = distance_to_segment(&pose.tip, &cl0.tip, &cl1.tip) / self.tip_tol;
+            let axis = angle_to_arc(&pose.axis, &cl0.axis, &cl1.axis) / self.axis_tol;
             worst = worst.max(tip).max(axis);
         }
         worst

@@ -19,7 +19,7 @@ use ncpost::preset::Preset;
 use proptest::prelude::*;
 
 mod common;
-use common::deviation::{arc_angle, segment_distance, unit};
+use common::geometry::{angle_to_arc, distance_to_segment, unit};
 
 const PRESETS: [&str; 4] = ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"];
 
@@ -156,7 +156,7 @@ fn check_pieces(
         let (x1, r1) = five(m, b);
         // Every block is on the programmed segment before printing.
         let pb = fk(m, b);
-        assert!(segment_distance(&pb.tip, &cl0.tip, &cl1.tip) < 1e-6);
+        assert!(distance_to_segment(&pb.tip, &cl0.tip, &cl1.tip) < 1e-6);
         for k in 0..=200 {
             let s = k as f64 / 200.0;
             let l = |p: f64, q: f64| p + (q - p) * s;
@@ -164,8 +164,10 @@ fn check_pieces(
                 &[l(x0[0], x1[0]), l(x0[1], x1[1]), l(x0[2], x1[2])],
                 [l(r0[0], r1[0]), l(r0[1], r1[1])],
             );
-            worst.0 = worst.0.max(segment_distance(&pose.tip, &cl0.tip, &cl1.tip));
-            worst.1 = worst.1.max(arc_angle(&pose.axis, &cl0.axis, &cl1.axis));
+            worst.0 = worst
+                .0
+                .max(distance_to_segment(&pose.tip, &cl0.tip, &cl1.tip));
+            worst.1 = worst.1.max(angle_to_arc(&pose.axis, &cl0.axis, &cl1.axis));
         }
         a = *b;
     }

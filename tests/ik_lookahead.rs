@@ -8,6 +8,7 @@ use ncpost::machine::Machine;
 use ncpost::pipeline::{Pipeline, Source};
 use proptest::prelude::*;
 
+#[allow(dead_code)]
 #[path = "common/geometry.rs"]
 mod geometry;
 use geometry::{AXIS_TOL_DEG, TIP_TOL, angle_to_arc, distance_to_segment};

@@ -12,7 +12,9 @@ use ncpost::pipeline::{Pipeline, Source};
 use ncpost::preset::Preset;
 
 mod common;
-use common::deviation::{arc_angle, arc_distance, segment_distance, segment_distance_xy, unit};
+use common::geometry::{
+    angle_to_arc, arc_distance, distance_to_segment, segment_distance_xy, unit,
+};
 
 const PRESETS: [&str; 4] = ["emoc-x5", "trunnion-bc", "head-table", "head-head-ab"];
 
@@ -109,8 +111,10 @@ fn five_axis_deviation(
         let s = f64::from(k) / 200.0;
         let l = |i: usize| a[i] + (b[i] - a[i]) * s;
         let pose = m.forward(&[l(0), l(1), l(2)], [l(3), l(4)]);
-        worst.0 = worst.0.max(segment_distance(&pose.tip, &p0.tip, &p1.tip));
-        worst.1 = worst.1.max(arc_angle(&pose.axis, &p0.axis, &p1.axis));
+        worst.0 = worst
+            .0
+            .max(distance_to_segment(&pose.tip, &p0.tip, &p1.tip));
+        worst.1 = worst.1.max(angle_to_arc(&pose.axis, &p0.axis, &p1.axis));
     }
     worst
 }

@@ -1,7 +1,8 @@
 //! Geometry the 5-axis tests measure the printed path with: a point's distance to the
-//! programmed segment, an axis's angle to the programmed great-circle arc.
+//! programmed segment, an axis's angle to the programmed great-circle arc, and the same
+//! in the plane for the polar tests (and `benches/pieces.rs`).
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{Point3, Unit, Vector2, Vector3};
 
 /// `densify`'s default tip tolerance, mm: how far the printed path may stray from the line.
 pub const TIP_TOL: f64 = 0.01;
@@ -40,4 +41,39 @@ pub fn angle_to_arc(v: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>) -> f64
     } else {
         ends
     }
+}
+
+/// The unit vector `tilt` degrees from Z towards the azimuth `azimuth` degrees from X.
+pub fn unit(tilt: f64, azimuth: f64) -> Unit<Vector3<f64>> {
+    let (st, ct) = tilt.to_radians().sin_cos();
+    let (sp, cp) = azimuth.to_radians().sin_cos();
+    Unit::new_normalize(Vector3::new(st * cp, st * sp, ct))
+}
+
+/// Distance from `p` to the arc about `centre` of `radius` from angle `start` (radians)
+/// over the signed angle `sweep` (at most a turn).
+pub fn arc_distance(
+    p: &Vector2<f64>,
+    centre: &Vector2<f64>,
+    radius: f64,
+    start: f64,
+    sweep: f64,
+) -> f64 {
+    let v = p - centre;
+    // The angle from the start in the arc's sense, in [0, 2π).
+    let along = ((v.y.atan2(v.x) - start) * sweep.signum()).rem_euclid(std::f64::consts::TAU);
+    if along <= sweep.abs() {
+        return (v.norm() - radius).abs();
+    }
+    let end = |a: f64| centre + Vector2::new(a.cos(), a.sin()) * radius;
+    (p - end(start)).norm().min((p - end(start + sweep)).norm())
+}
+
+/// Distance from `p` to the segment `a`–`b` in the plane.
+pub fn segment_distance_xy(p: &Vector2<f64>, a: &Vector2<f64>, b: &Vector2<f64>) -> f64 {
+    distance_to_segment(
+        &Point3::new(p.x, p.y, 0.0),
+        &Point3::new(a.x, a.y, 0.0),
+        &Point3::new(b.x, b.y, 0.0),
+    )
 }

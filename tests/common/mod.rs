@@ -1,7 +1,7 @@
 //! Helpers shared by the integration tests (`mod common;`).
 
 #[allow(dead_code)]
-pub mod deviation;
+pub mod geometry;
 
 use ncpost::diag::Diagnostic;
 use ncpost::ir::Block;
