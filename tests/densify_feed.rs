@@ -864,3 +864,30 @@ fn snapshot_feed() {
         )
     );
 }
+
+/// Far from the rotary axes the last printed decimal of an angle is a long way for the
+/// tip. A rotary that does not move and prints exactly costs nothing: the move stays one
+/// block (it was cut into 2^16 pieces). One that prints inexactly so far out that no cut
+/// can help gets `densify::rounding`, and the move is not cut into thousands of blocks.
+#[test]
+fn densify_far_from_the_rotary_axes() {
+    let m = machine("emoc-x5");
+    let d = Some(emoc_decimals());
+    let far = |angles: [f64; 2]| {
+        let j0 = joints(&m, [9.3, 4.86, -1.4], angles);
+        let j1 = joints(&m, [9.4, 5.6, -20000.0], angles);
+        let blocks = vec![
+            motion(1, MotionKind::Rapid, j0, None),
+            motion(2, MotionKind::Linear, j1, Some(3000.0)),
+        ];
+        run("densify", "", &m, d, blocks)
+    };
+    let (out, diags) = far([0.0, 90.0]);
+    assert_eq!(out.len(), 2, "{out:?}");
+    assert!(diags.is_empty(), "{diags:?}");
+
+    let (out, diags) = far([0.123_456_789, 90.0]);
+    let codes: Vec<&str> = diags.iter().map(|d| d.code).collect();
+    assert_eq!(codes, ["densify::rounding"]);
+    assert!(out.len() < 100, "{} blocks", out.len());
+}

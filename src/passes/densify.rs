@@ -47,10 +47,14 @@
 //! # The printed numbers
 //! The tolerances hold on the positions as printed: the backend rounds every axis to half
 //! a unit of its last decimal (`ctx.decimals`), which moves the tip by up to `√3` times
-//! the linear rounding plus the rotary rounding (radians) times the tip's distance from
-//! each rotary axis, and turns the tool axis by up to twice the rotary rounding. The
-//! check gets the tolerances less those amounts; tolerances finer than the printed
-//! decimals can hold are a settings error.
+//! the linear rounding plus each rotary's own rounding at the piece's ends (radians, 0 for
+//! an angle that prints exactly) times the tip's distance from that rotary's axis, and
+//! turns the tool axis by up to twice the rotary rounding. The check gets the tolerances
+//! less those amounts; tolerances finer than the printed decimals can hold are a settings
+//! error. Far from a rotary axis (a part metres away, or a wild CL point) the rounding of
+//! an angle alone can exceed the tip tolerance, and no cut helps: from there the move is
+//! left whole with the warning `densify::rounding`, rather than cut into `2^max_depth`
+//! useless blocks.
 //!
 //! Only linear moves (and rapids with `rapids = true`) from a position with all five
 //! machine axes known are checked; commands and lines that clobber axes make the next
@@ -66,7 +70,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, Motion, MotionKind, Span, Target};
 use crate::machine::angle::near_turn;
 use crate::machine::{Machine, PathEnd, ToolPose};
-use crate::num::print::Decimals;
+use crate::num::print::{self, Decimals};
 
 /// Options of `densify`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -137,6 +141,16 @@ const CHECK_LEVELS: u8 = 20;
 /// a share of the piece's length: a piece is at most 2 % shorter than it could be.
 const PRECISION: f64 = 0.02;
 
+/// Why `densify` left a piece of a move out of tolerance, the worse last.
+#[derive(Debug, Clone, Copy, PartialEq, PartialOrd)]
+enum Shortfall {
+    /// A piece would have to be shorter than `2^-max_depth` of the move.
+    Depth,
+    /// The print rounding of the rotaries alone moves the tip this far (mm), beyond the
+    /// tolerance, however short the piece.
+    Rounding(f64),
+}
+
 /// A joint position with its five machine axes and tool pose.
 #[derive(Debug, Clone)]
 struct Node {
@@ -147,6 +161,9 @@ struct Node {
     /// Worked out on first use ([`Densify::pose`]): a move that passes the whole-move
     /// test never needs its ends' poses.
     pose: OnceCell<ToolPose>,
+    /// How far each rotary's printed value lies from its value here, radians (0 when
+    /// the backend does not print).
+    rotary_rounding: [f64; 2],
 }
 
 /// The programmed straight line of the tool tip.
@@ -314,6 +331,8 @@ pub struct Densify {
     /// How far a printed value may lie from the computed one: half a unit of the last
     /// printed decimal of a linear axis (mm) and of a rotary (radians); 0 unprinted.
     rounding: [f64; 2],
+    /// The decimals the rotaries are printed with, when the backend prints.
+    rotary_places: Option<u8>,
     /// The last emitted position.
     prev: Joints,
     /// Its five machine axes and pose (when all are known) sit in `nodes[prev_slot]`; a
@@ -335,6 +354,7 @@ impl Densify {
             axis_tol,
             sin_axis_tol: axis_tol.sin(),
             rounding: [0.0; 2],
+            rotary_places: None,
             options,
             prev: Joints::default(),
             nodes: [None, None],
@@ -351,6 +371,7 @@ impl Densify {
         };
         let half = |places: u8| 0.5 * 10f64.powi(-i32::from(places));
         self.rounding = [half(d.linear), half(d.rotary).to_radians()];
+        self.rotary_places = Some(d.rotary);
         // Each rotary turns the tool axis by up to its rounding.
         self.axis_tol = self.options.axis_tolerance.to_radians() - 2.0 * self.rounding[1];
         self.sin_axis_tol = self.axis_tol.sin();
@@ -366,10 +387,12 @@ impl Densify {
 
     /// How far the print rounding may move the tool tip on the joint-linear path from
     /// `a` to `b`, mm. The rounding of each end is interpolated along the path like the
-    /// joints, so it is within the rounding everywhere: X, Y, Z move the tip by up to
-    /// `√3` times theirs, and a rotary turned by `δ` moves it by `δ` times its distance
-    /// from that rotary's axis, which along the piece stays below the larger of the
-    /// ends' distances plus how far the piece goes.
+    /// joints, so it is within the larger end's everywhere: X, Y, Z move the tip by up to
+    /// `√3` times half their last unit (not their own rounding: `feed:hold_units` may
+    /// print a neighbour's value), and a rotary printed `δ` off moves it by `δ` times its
+    /// distance from that rotary's axis, which along the piece stays below the larger of
+    /// the ends' distances plus how far the piece goes. A rotary printed exactly (a whole
+    /// angle, say) costs nothing however far the tip is from its axis.
     fn print_error(&self, a: &Node, b: &Node) -> f64 {
         let [lin, rot] = self.rounding;
         if rot == 0.0 && lin == 0.0 {
@@ -380,7 +403,10 @@ impl Densify {
             + (0..2)
                 .map(|i| (b.at.angles[i] - a.at.angles[i]).abs().to_radians() * reach(i))
                 .sum::<f64>();
-        lin * 3f64.sqrt() + rot * (reach(0) + reach(1) + 2.0 * travel)
+        let rotary = (0..2)
+            .map(|i| a.rotary_rounding[i].max(b.rotary_rounding[i]) * (reach(i) + travel))
+            .sum::<f64>();
+        lin * 3f64.sqrt() + rotary
     }
 
     /// The five machine axes of `joints`, when all are known.
@@ -409,10 +435,19 @@ impl Densify {
 
     /// The node of `joints`, whose five machine axes are `xyz` and `angles`.
     fn node_at(&self, joints: Joints, xyz: [f64; 3], angles: [f64; 2]) -> Node {
+        let rounding = |deg: f64| {
+            self.rotary_places
+                .map_or(0.0, |places| match print::printed(deg, places) {
+                    Some(p) => (p - deg).abs().to_radians(),
+                    // Beyond what prints: the backend reports it; count half a unit.
+                    None => self.rounding[1],
+                })
+        };
         Node {
             joints,
             at: self.machine.path_end(xyz, angles),
             pose: OnceCell::new(),
+            rotary_rounding: [rounding(angles[0]), rounding(angles[1])],
         }
     }
 
@@ -586,7 +621,7 @@ impl Densify {
     }
 
     /// Emits the pieces of the move from `a` to `b` but its last (the caller puts out
-    /// the original block there); true when a piece had to stay out of tolerance.
+    /// the original block there); why a piece had to stay out of tolerance, if one did.
     fn split_move(
         &self,
         motion: &Motion,
@@ -594,30 +629,47 @@ impl Densify {
         a: &Node,
         b: &Node,
         out: &mut Output<'_>,
-    ) -> bool {
+    ) -> Option<Shortfall> {
         match self.turn_on_the_spot(a, b) {
             Some(m) => {
-                let deep = self.cut(motion, span, a, &m, out);
+                let first = self.cut(motion, span, a, &m, out);
                 piece(motion, span, &m, out);
-                self.cut(motion, span, &m, b, out) | deep
+                let second = self.cut(motion, span, &m, b, out);
+                // The worse of the two halves (`None` is the least).
+                if second > first { second } else { first }
             }
             None => self.cut(motion, span, a, b, out),
         }
     }
 
     /// Cuts the programmed move from `a` to `b` into the longest pieces within tolerance
-    /// and puts out every piece of `motion` but the last (ending at `b`); true when a
-    /// piece had to stay out of tolerance (shorter than `2^-max_depth` of the move).
-    fn cut(&self, motion: &Motion, span: Span, a: &Node, b: &Node, out: &mut Output<'_>) -> bool {
+    /// and puts out every piece of `motion` but the last (ending at `b`); says why a piece
+    /// had to stay out of tolerance: shorter than `2^-max_depth` of the move, or the print
+    /// rounding alone beyond the tolerance (then the rest of the move stays whole, as no
+    /// cut can help: it would only print up to `2^max_depth` useless blocks).
+    fn cut(
+        &self,
+        motion: &Motion,
+        span: Span,
+        a: &Node,
+        b: &Node,
+        out: &mut Output<'_>,
+    ) -> Option<Shortfall> {
         let arc = self.arc(a, b);
         let min_step = 0.5f64.powi(self.options.max_depth as i32);
-        let mut deep = false;
+        let mut shortfall = None;
         let mut cur = (0.0, a.clone());
         let mut last_len: Option<f64> = None;
         let mut fits_rest = self.within(a, b);
         while !fits_rest {
+            let floor = self.print_error(&cur.1, &cur.1);
+            if floor >= self.options.tip_tolerance {
+                return Some(Shortfall::Rounding(floor));
+            }
             let (s, node, fits) = self.longest(a, b, &arc, &cur, last_len, min_step);
-            deep |= !fits;
+            if !fits {
+                shortfall = Some(Shortfall::Depth);
+            }
             if s >= 1.0 {
                 break;
             }
@@ -635,7 +687,7 @@ impl Densify {
             last_len = Some(s - cur.0);
             cur = (s, node);
         }
-        deep
+        shortfall
     }
 
     /// The longest piece from `cur` (at fraction `cur.0` of the move from `a` to `b`)
@@ -795,26 +847,47 @@ impl Densify {
         };
         let end_slot = 1 - self.prev_slot;
         if let (Some(a), Some(b)) = (&self.nodes[self.prev_slot], &self.nodes[end_slot]) {
-            let hit_limit =
-                self.options.max_depth == 0 || self.split_move(m, block.span, a, b, out);
-            if hit_limit {
-                out.diag(
-                    Diagnostic::warning(
-                        "densify::depth",
-                        format!(
-                            "a piece of this move stays off the programmed path: pieces would \
-                             have to be shorter than 2^-{} of the move",
-                            self.options.max_depth
-                        ),
-                    )
-                    .at_span(block.span)
-                    .with_help(
-                        "the rotaries swing far for this move (a singularity or a branch change?); raise max_depth or the tolerances, or check the ik choices",
-                    ),
-                );
+            let shortfall = if self.options.max_depth == 0 {
+                Some(Shortfall::Depth)
+            } else {
+                self.split_move(m, block.span, a, b, out)
+            };
+            if let Some(why) = shortfall {
+                out.diag(self.shortfall_warning(why).at_span(block.span));
             }
         }
         self.moved_to(m, end, end_slot);
+    }
+
+    fn shortfall_warning(&self, why: Shortfall) -> Diagnostic {
+        match why {
+            Shortfall::Depth => Diagnostic::warning(
+                "densify::depth",
+                format!(
+                    "a piece of this move stays off the programmed path: pieces would have to \
+                     be shorter than 2^-{} of the move",
+                    self.options.max_depth
+                ),
+            )
+            .with_help(
+                "the rotaries swing far for this move (a singularity or a branch change?); \
+                 raise max_depth or the tolerances, or check the ik choices",
+            ),
+            Shortfall::Rounding(floor) => Diagnostic::warning(
+                "densify::rounding",
+                format!(
+                    "the printed rotary positions alone put the tool tip up to {floor:.4} mm off \
+                     here, beyond tip_tolerance {} mm: the tip is far from a rotary axis, where \
+                     the last printed decimal of an angle is a long way; the rest of the move is \
+                     not cut",
+                    self.options.tip_tolerance
+                ),
+            )
+            .with_help(
+                "bring the work closer to the rotary axes, print more rotary decimals, or raise \
+                 tip_tolerance",
+            ),
+        }
     }
 }
 
