@@ -69,12 +69,19 @@ struct State {
 }
 
 impl State {
-    /// The last free stage with a batch waiting (later stages first, so batches leave
-    /// and memory stays low).
-    fn runnable(&mut self) -> Option<Task> {
-        let k = (0..self.inbox.len())
-            .rev()
-            .find(|&k| !self.busy[k] && !self.inbox[k].is_empty())?;
+    /// A free stage with a batch waiting: for the reading thread the last one, for the
+    /// other the first. So the other thread stays with the slowest stage (the one batches
+    /// queue up for) while the reading thread reads and takes the later stages in
+    /// between. When both took the last stage first, the slowest stage stood idle whenever
+    /// one thread was reading and the other printing: the identity run (reading, lowering,
+    /// printing) took 1.3 times the lowering alone.
+    fn runnable(&mut self, reader: bool) -> Option<Task> {
+        let free = |k: &usize| !self.busy[*k] && !self.inbox[*k].is_empty();
+        let k = if reader {
+            (0..self.inbox.len()).rev().find(free)?
+        } else {
+            (0..self.inbox.len()).find(free)?
+        };
         let batch = self.inbox[k].pop_front()?;
         debug_assert_eq!(batch.seq, self.expected[k], "stage {k} out of order");
         self.expected[k] += 1;
@@ -115,7 +122,7 @@ impl Schedule {
             if reader && !s.read_all && s.in_flight < MAX_IN_FLIGHT {
                 return Some(s.read());
             }
-            if let Some(task) = s.runnable() {
+            if let Some(task) = s.runnable(reader) {
                 return Some(task);
             }
             if s.read_all && s.in_flight == 0 {
