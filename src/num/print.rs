@@ -68,12 +68,17 @@ impl Decimals {
         if !value.is_finite() || value == 0.0 {
             return self.feed;
         }
-        let magnitude = value.abs().log10().floor() as i32;
-        let places = i32::from(FEED_SIGNIFICANT) - 1 - magnitude;
-        places.clamp(
-            i32::from(self.feed),
-            i32::from(FEED_MAX_DECIMALS.max(self.feed)),
-        ) as u8
+        // One more place while the value has fewer than FEED_SIGNIFICANT digits before
+        // the last: `|v| 10^places < 10^(FEED_SIGNIFICANT - 1)`. (Comparing with exact
+        // powers of ten, where `log10` of a value just below one rounds up to it.)
+        let v = value.abs();
+        let first_digit = POW10[usize::from(FEED_SIGNIFICANT - 1)];
+        let most = FEED_MAX_DECIMALS.max(self.feed);
+        let mut places = self.feed;
+        while places < most && v * POW10[usize::from(places.min(9))] < first_digit {
+            places += 1;
+        }
+        places
     }
 
     /// F `value` as the controller reads it: printed at [`Decimals::feed_decimals`];
@@ -236,6 +241,35 @@ mod tests {
         let mut s = String::new();
         assert!(write_fixed(&mut s, v, d, trim));
         s
+    }
+
+    #[test]
+    fn feed_places_follow_the_magnitude() {
+        // The significant-digit rule as a formula, away from exact powers of ten (where
+        // the formula's log10 may round either way).
+        for feed in [0u8, 1, 2, 3, 7] {
+            let d = Decimals {
+                feed,
+                ..Decimals::default()
+            };
+            for k in 0..4000 {
+                let v = 10f64.powf(-7.0 + f64::from(k) * 0.00371);
+                let magnitude = v.log10().floor() as i32;
+                if (v.log10() - v.log10().round()).abs() < 1e-9 {
+                    continue;
+                }
+                let want = (i32::from(FEED_SIGNIFICANT) - 1 - magnitude)
+                    .clamp(i32::from(feed), i32::from(FEED_MAX_DECIMALS.max(feed)));
+                assert_eq!(i32::from(d.feed_decimals(v)), want, "{v} at {feed}");
+                assert_eq!(d.feed_decimals(-v), d.feed_decimals(v));
+            }
+            // A power of ten has its own digit count: 1000 needs no decimal for 4 digits.
+            assert_eq!(d.feed_decimals(1000.0), feed);
+            assert_eq!(
+                d.feed_decimals(0.1),
+                4.clamp(feed, FEED_MAX_DECIMALS.max(feed))
+            );
+        }
     }
 
     #[test]
