@@ -148,6 +148,19 @@ pub const INFO: PassInfo = PassInfo {
 /// followed along their path (see `Ik::walked_from`).
 const WALK_STEP: f64 = 2.0;
 
+/// A walk's steps are at most this fraction of the tool axis's distance from the singular
+/// direction (see `Ik::walk`), and a move counts as passing it when its turn is more than
+/// this fraction of its ends' distance (`Ik::passes_singular`).
+const WALK_RATIO: f64 = 4.0;
+
+/// The shortest step of a walk, degrees: a move passing closer than half this to the
+/// singular direction may be walked through it (the tool axis that far off the arc).
+const MIN_WALK_STEP: f64 = 0.01;
+
+/// Most steps of one walk: a half turn in steps of [`WALK_STEP`] takes 90, the approach to
+/// and the way away from the singular direction some 40.
+const MAX_WALK_STEPS: usize = 4096;
+
 /// Costs closer than this (degrees) are a tie, decided by the preferred sign.
 const TIE: f64 = 1e-9;
 
@@ -309,10 +322,14 @@ impl Ik {
 
     /// The rotary values reached by following the tool axis from orientation `from` (at
     /// rotary values `prev`) to `axis` along the great circle (the path densify makes the
-    /// tool take) in steps of at most [`WALK_STEP`] degrees, taking the nearest solution
-    /// at each step. Comparing end points alone can pick the other branch when a move
-    /// turns the axis far: from A20 C240 to a 70 deg tilt, A-70 C160 is "nearer" than A70
-    /// C340, but getting there swings the tool through vertical, off the programmed path.
+    /// tool take), taking the nearest solution at each step ([`Ik::walk`]). Comparing end
+    /// points alone can pick the other branch when a move turns the axis far: from A20
+    /// C240 to a 70 deg tilt, A-70 C160 is "nearer" than A70 C340, but getting there
+    /// swings the tool through vertical, off the programmed path. So it can when a short
+    /// move passes close by the singular direction: the free rotary sweeps the angle the
+    /// move subtends there, up to half a turn, and past a quarter turn the other branch's
+    /// ends look nearer (a B head over a C table passing 0.3 deg from vertical: C sweeps
+    /// 136 deg along the move, while B-1.5 C-44 at its end is "nearer" than B1.5 C136).
     fn walked_from(
         &self,
         from: Unit<Vector3<f64>>,
@@ -326,13 +343,37 @@ impl Ik {
         // one `angle` takes the arccosine of) against a cone a little narrower than a step,
         // so that acos rounding cannot matter. Both are unit vectors: their dot product is
         // the cosine, to a rounding far inside the cone's margin.
-        if from.dot(&axis) >= self.within_step_cos {
+        let dot = from.dot(&axis);
+        if dot >= 1.0 || (dot >= self.within_step_cos && !self.passes_singular(from, axis, dot)) {
             return prev;
         }
         match self.walk(from, axis, [p0, p1]) {
             Some([a0, a1]) => [Some(a0), Some(a1)],
             None => prev,
         }
+    }
+
+    /// Whether the turn from tool axis `from` to `axis` (`dot` the cosine between them)
+    /// may come close enough to the singular direction that the free rotary sweeps far
+    /// along it. The free rotary turns by the angle the move subtends at the singular
+    /// direction, at most the turn over the sine of the nearest distance to it along the
+    /// way, and that distance is at least the ends' nearer one less half the turn: a turn
+    /// at most a quarter of both ends' distances sweeps at most 17 degrees, and the
+    /// nearest ends are then those the move reaches. Without trigonometry: the squared
+    /// turn is at most 2.002 (1 - dot) below 2 degrees, the squared distance at least its
+    /// squared sine.
+    fn passes_singular(
+        &self,
+        from: Unit<Vector3<f64>>,
+        axis: Unit<Vector3<f64>>,
+        dot: f64,
+    ) -> bool {
+        let turn2 = 2.002 * (1.0 - dot);
+        let sin2 = |a: Unit<Vector3<f64>>| {
+            let c = self.machine.singularity_cos(a);
+            1.0 - c * c
+        };
+        WALK_RATIO * WALK_RATIO * turn2 > sin2(from).min(sin2(axis))
     }
 
     /// The tool axis the last emitted pose asked for, unless the rotaries moved since
@@ -347,43 +388,44 @@ impl Ik {
         })
     }
 
-    /// [`Ik::walked_from`] from tool axis `from` at rotary values `[p0, p1]` to `axis`, when it
-    /// turns far enough to look: the values reached, or `None` to keep `[p0, p1]`.
+    /// [`Ik::walked_from`] from tool axis `from` at rotary values `[p0, p1]` to `axis`: the
+    /// values reached, or `None` to keep `[p0, p1]` (axes nearly opposite: no one great
+    /// circle joins them). The steps are at most [`WALK_STEP`] and at most a
+    /// [`WALK_RATIO`]th of the distance from the singular direction, so the free rotary
+    /// turns at most some 17 degrees a step and the nearest solution stays on the branch;
+    /// within [`MIN_WALK_STEP`] of it a step may pass it (the tool axis tilts through the
+    /// singular direction, at most that far off the programmed arc), and within the
+    /// singularity cone the free rotary is held ([`Ik::continuous`]), as `ik` holds it.
     fn walk(
         &self,
         from: Unit<Vector3<f64>>,
         axis: Unit<Vector3<f64>>,
         [p0, p1]: [f64; 2],
     ) -> Option<[f64; 2]> {
-        let turn = from.angle(&axis).to_degrees();
-        if turn <= WALK_STEP || turn > 180.0 - WALK_STEP {
+        let turn = from.angle(&axis);
+        if turn <= 0.0 || turn > (180.0 - WALK_STEP).to_radians() {
             return None;
         }
-        let steps = (turn / WALK_STEP).ceil() as usize;
+        let (max_step, min_step) = (WALK_STEP.to_radians(), MIN_WALK_STEP.to_radians());
         let mut cur = [p0, p1];
-        for s in 1..=steps {
-            let t = s as f64 / steps as f64;
-            let ax = from.try_slerp(&axis, t, 1e-12)?;
-            let mut best: Option<([f64; 2], (f64, f64))> = None;
-            for o in &self.machine.inverse(ax) {
-                let mut a = [
-                    near_turn(o.angles[0], cur[0]),
-                    near_turn(o.angles[1], cur[1]),
-                ];
-                if let Some(f) = o.free {
-                    a[f] = cur[f];
-                }
-                let c = self.cost(a, [Some(cur[0]), Some(cur[1])]);
-                if best.is_none_or(|(_, bc)| Self::less(c, bc) == Some(true)) {
-                    best = Some((a, c));
-                }
-            }
-            match best {
-                Some((a, _)) => cur = a,
-                None => return None,
+        let mut t = 0.0;
+        let mut at = from;
+        for _ in 0..MAX_WALK_STEPS {
+            let c = self.machine.singularity_cos(at);
+            let distance = (1.0 - c * c).max(0.0).sqrt();
+            let step = (distance / WALK_RATIO).clamp(min_step, max_step);
+            t = (t + step / turn).min(1.0);
+            at = if t >= 1.0 {
+                axis
+            } else {
+                from.try_slerp(&axis, t, 1e-12)?
+            };
+            cur = self.continuous(at, cur);
+            if t >= 1.0 {
+                return Some(cur);
             }
         }
-        Some(cur)
+        None
     }
 
     /// How far (degrees) `axis` is from the nearest orientation the rotaries reach within

@@ -483,7 +483,7 @@ impl Ik {
 
     /// The rotaries pointing the tool along `axis` nearest `walked`, limits ignored (the
     /// free rotary held inside the singularity cone).
-    fn continuous(&self, axis: Unit<Vector3<f64>>, walked: [f64; 2]) -> [f64; 2] {
+    pub(super) fn continuous(&self, axis: Unit<Vector3<f64>>, walked: [f64; 2]) -> [f64; 2] {
         let solutions = self.machine.inverse(axis);
         let free = solutions.iter().find_map(|o| o.free);
         if free.is_some() || solutions.singularity_cos > self.cone_cos {
