@@ -373,6 +373,12 @@ impl Ik {
             let c = self.machine.singularity_cos(a);
             1.0 - c * c
         };
+        // A start held inside the singularity cone has its free rotary where the path
+        // before left it, not where the tool axis points: walking from there would follow
+        // a branch chosen by that held value, so the end's nearest solution decides.
+        if self.machine.singularity_cos(from) > self.cone_cos {
+            return false;
+        }
         WALK_RATIO * WALK_RATIO * turn2 > sin2(from).min(sin2(axis))
     }
 
@@ -410,10 +416,18 @@ impl Ik {
         let mut cur = [p0, p1];
         let mut t = 0.0;
         let mut at = from;
+        // From a start held in the singularity cone the first step is a whole one: the
+        // held free rotary says nothing about the branch, and fine steps where the path
+        // leaves the cone would follow its azimuth there instead of the move's end.
+        let held = self.machine.singularity_cos(from) > self.cone_cos;
         for _ in 0..MAX_WALK_STEPS {
             let c = self.machine.singularity_cos(at);
             let distance = (1.0 - c * c).max(0.0).sqrt();
-            let step = (distance / WALK_RATIO).clamp(min_step, max_step);
+            let step = if held && t == 0.0 {
+                max_step
+            } else {
+                (distance / WALK_RATIO).clamp(min_step, max_step)
+            };
             t = (t + step / turn).min(1.0);
             at = if t >= 1.0 {
                 axis
