@@ -293,7 +293,18 @@ fn check(name: &str, points: &[ClPoint]) {
     // Every CL point is reproduced, in order, by an emitted block (1e-6 mm, exact IR).
     let mut hits = Vec::new();
     let mut k = 0;
-    for (i, (_, j)) in emitted.iter().enumerate() {
+    for (i, (rapid, j)) in emitted.iter().enumerate() {
+        // Rapids staying at the point just reached (a free rotary swung at the rapid's
+        // end before the cut) belong to that point: the cut starts at the last of them.
+        if *rapid && k > 0 && hits.last() == Some(&(i - 1)) {
+            let (tip, axis) = fk(&m, j);
+            if (tip - points[k - 1].tip).norm() < 1e-6
+                && axis.angle(&points[k - 1].axis).to_degrees() < 1e-6
+            {
+                hits[k - 1] = i;
+                continue;
+            }
+        }
         if k < points.len() && (fk(&m, j).0 - points[k].tip).norm() < 1e-6 {
             let axis_err = fk(&m, j).1.angle(&points[k].axis).to_degrees();
             assert!(
@@ -364,9 +375,12 @@ fn check(name: &str, points: &[ClPoint]) {
                 ((j1[3] - j0[3]).powi(2) + (j1[4] - j0[4]).powi(2)).sqrt() / f
             };
             let tip_len = (fk(&m, &emitted[w + 1].1).0 - fk(&m, &emitted[w].1).0).norm();
-            if tip_len < 1e-9 {
-                continue;
-            }
+            // Issue 20: no cutting block keeps the tip still (the tool would dwell in
+            // the material while the rotaries turn).
+            assert!(
+                tip_len > 1e-6,
+                "{name}: segment {seg} block {w}: the tip stands still in a cut"
+            );
             let programmed_minutes = tip_len / feed;
             let rel = (controller_minutes - programmed_minutes).abs() / programmed_minutes;
             assert!(
@@ -399,6 +413,58 @@ fn undercut_needs_a_over_90() {
     let a_max = a.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
     let a_min = a.iter().cloned().fold(f64::INFINITY, f64::min);
     assert!(a_min > 109.99 && a_max < 110.1, "A in {a_min}..{a_max}");
+}
+
+/// A cut starting at vertical, the E-moc's singular direction, right after the rapid that
+/// reached it, and tilting 32.5 degrees towards +X while it plunges (the start of
+/// `scripts/gen-cl.py`'s spiral): C is free at vertical and the cut needs C-90.
+fn plunge_tilting_from_vertical() -> Vec<ClPoint> {
+    let start = ClPoint {
+        tip: Point3::new(40.0, 0.0, 60.0),
+        axis: Vector3::z_axis(),
+        feed: 1200.0,
+    };
+    let mut pts = vec![start];
+    for i in 0..=4 {
+        let t = i as f64 / 4.0;
+        pts.push(ClPoint {
+            tip: Point3::new(40.0 + 2.0 * t, 3.0 * t, 40.0 - t),
+            axis: axis_from(32.5 + 5.0 * t, 10.0 * t),
+            feed: 1200.0,
+        });
+    }
+    pts
+}
+
+#[test]
+fn swing_leaving_vertical_is_made_at_the_rapid_before_the_cut() {
+    let pts = plunge_tilting_from_vertical();
+    check("plunge", &pts);
+    // The table turns before the tool enters the cut: every C change before the first
+    // G1 is printed in G0 blocks, and the cut's blocks keep C near the cut's own -90.
+    let run = compile(&cl_text(&pts));
+    let printed = printed_motions(&run.printed);
+    let first_cut = printed
+        .iter()
+        .position(|(rapid, _, _)| !rapid)
+        .expect("a cut");
+    let c_at_cut = printed[first_cut - 1].1[4];
+    assert!(
+        (c_at_cut + 90.0).abs() < 0.01,
+        "C{c_at_cut} when the cut starts"
+    );
+    let swings = printed[..first_cut]
+        .windows(2)
+        .filter(|w| w[0].1[4] != w[1].1[4]);
+    assert!(
+        swings.count() >= 90,
+        "the 90 deg swing in pieces of at most 1 deg"
+    );
+    assert!(
+        !run.diags.iter().any(|d| d.code == "ik::singular-swing"),
+        "no swing is left in the cut: {:#?}",
+        run.diags
+    );
 }
 
 #[test]

@@ -355,7 +355,11 @@ fn ik_holds_c_at_the_singularity_and_warns_on_the_swing() {
         j[2]
     );
     assert!(j[2].0.abs() < 0.006);
-    assert!((j[3].1 - 120.0).abs() < 1e-9 && (j[3].0 - 5.0).abs() < 1e-9, "{:?}", j);
+    assert!(
+        (j[3].1 - 120.0).abs() < 1e-9 && (j[3].0 - 5.0).abs() < 1e-9,
+        "{:?}",
+        j
+    );
     assert!((j[4].1 - 120.0).abs() < 1e-12);
     assert!((j[5].1 - 125.0).abs() < 1e-9);
     assert_eq!(codes(&diags), vec!["ik::singular-swing"]);

@@ -52,7 +52,9 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, Target, Tracker};
+use crate::ir::{
+    Axis, AxisSet, Block, BlockKind, Joints, Motion, MotionKind, Span, Target, Tracker,
+};
 use crate::machine::angle::{LIMIT_SLACK, near_turn, turn_within};
 use crate::machine::{Machine, Orientation, Prefer, Turns};
 
@@ -199,6 +201,9 @@ pub struct Ik {
     prev: Joints,
     /// The rotary held at a singularity by the last pose block.
     held: Option<usize>,
+    /// The line of that block when it was a rapid: a swing the next cut needs is made
+    /// there, before the tool enters the material (`Ik::spread_swing`).
+    held_rapid: Option<Span>,
     /// The rotary values and tool axis of the last pose block.
     last_axis: Option<([f64; 2], Unit<Vector3<f64>>)>,
     /// cos(singularity_cone).
@@ -232,6 +237,7 @@ impl Ik {
             axes,
             prev: Joints::default(),
             held: None,
+            held_rapid: None,
             last_axis: None,
             cone_cos,
             within_step_cos: (WALK_STEP * (1.0 - 1e-6)).to_radians().cos(),
@@ -569,6 +575,7 @@ impl Ik {
         {
             // Joint moves from elsewhere end any hold at a singularity.
             self.held = None;
+            self.held_rapid = None;
         }
     }
 
@@ -588,7 +595,12 @@ impl Ik {
             return;
         };
         let cutting = !matches!(m.kind, MotionKind::Rapid);
-        if let Some((k, swing)) = self.singular_swing(choice, cutting) {
+        let swing = self.singular_swing(choice, cutting);
+        let mut at_rapid = false;
+        if cutting && choice.flip.is_none() {
+            at_rapid = self.spread_swing(span, m, choice, out);
+        }
+        if let Some((k, swing)) = swing.filter(|_| !at_rapid) {
             out.diag(
                 Diagnostic::warning(
                     "ik::singular-swing",
@@ -604,13 +616,11 @@ impl Ik {
                 )),
             );
         }
-        if cutting && choice.flip.is_none() {
-            self.spread_swing(span, m, choice, out);
-        }
         if let Some(flip) = choice.flip {
             self.flip(span, m, choice, flip, no_flip_free, out);
         }
         self.apply(m, choice);
+        self.held_rapid = (choice.held.is_some() && !cutting).then_some(span);
         out.push(block);
     }
 

@@ -11,11 +11,18 @@
 //! orientation a wrong free rotary tilts the tool little, so the axis leans at most
 //! [`SWING_LEAN`] degrees off while the swing lasts, and the tip keeps the programmed
 //! feed.
+//!
+//! When the singular pose was reached by a rapid (a cut starting with the tool along the
+//! free rotary's axis, as CAM programs start from vertical), the swing is made there
+//! instead, as rapids: the tool turns about its own axis over the start point before it
+//! cuts, as a hand-written post positions every axis in the approach. Spread over the cut,
+//! a swing of 90 degrees would fit into the first hundredth of a millimetre, and the tool
+//! would stand in the material for the seconds the table needs to turn.
 
 use nalgebra::{Point3, Unit, Vector3};
 
 use super::{Choice, Ik};
-use crate::ir::{Block, BlockKind, Motion, Span, Target};
+use crate::ir::{Block, BlockKind, Joints, Motion, MotionKind, Span, Target};
 use crate::passes::Output;
 
 /// Largest angle (degrees) the tool axis leans off the programmed one while a swing is
@@ -41,26 +48,28 @@ impl Ik {
     /// move `m` (to the joints of `choice`), when the last pose held it at a singular
     /// orientation and `choice` turns it away; the pass's position follows the pieces.
     /// Nothing is put out when the swing is negligible or a piece would leave the limits.
+    /// `true` when the swing was made at the rapid that reached the singular pose instead
+    /// ([`Ik::swing_at_rapid`]): the cut then has no swing in it.
     pub(super) fn spread_swing(
         &mut self,
         span: Span,
         m: &Motion,
         choice: &Choice,
         out: &mut Output<'_>,
-    ) {
+    ) -> bool {
         let Target::Pose(pose) = &m.target else {
-            return;
+            return false;
         };
         let (Some(k), None) = (self.held, choice.held) else {
-            return;
+            return false;
         };
         let Some((xyz, angles)) = self.prev_five() else {
-            return;
+            return false;
         };
         let (p, q) = (angles[k], choice.angles[k]);
         let swing = (q - p).abs();
         if swing <= LEAST_SWING {
-            return;
+            return false;
         }
         let start = self.machine.forward(&xyz, angles);
         let from_axis = match self.last_axis {
@@ -69,14 +78,19 @@ impl Ik {
         };
         let turn = from_axis.angle(&pose.axis);
         if turn < 1e-12 {
-            return;
+            return false;
         }
         // A free rotary `d` off tilts an axis `t` from the singular direction by about
         // t d; stepping linearly to the end of the swing at fraction `reach` of the move,
         // the lean is at most reach turn swing / 4.
         let reach = (4.0 * SWING_LEAN.to_radians() / (turn * swing.to_radians())).min(1.0);
         if reach >= 1.0 && self.sag(start.tip, (xyz, angles), pose, choice) <= MOVE_SAG {
-            return;
+            return false;
+        }
+        if let Some(at) = self.held_rapid
+            && self.swing_at_rapid(at, m, k, (p, q), (xyz, angles), out)
+        {
+            return true;
         }
         let n = (swing / PIECE_SWING).ceil().max(1.0);
         let first = reach / (2.0 * n);
@@ -97,6 +111,59 @@ impl Ik {
             }
         }
         self.swing_buf = buf;
+        false
+    }
+
+    /// Puts out the swing of held rotary `k` from `p` to `q` as rapids at the start
+    /// `(xyz, angles)` of cutting move `m`, on the line `at` of the rapid that got there:
+    /// the tool axis and the tip stay, pieces of at most [`PIECE_SWING`] keep the tip
+    /// within a few micrometres of the point between them. `false`, putting out nothing,
+    /// when the other rotary would leave its limits.
+    fn swing_at_rapid(
+        &mut self,
+        at: Span,
+        m: &Motion,
+        k: usize,
+        (p, q): (f64, f64),
+        (xyz, angles): ([f64; 3], [f64; 2]),
+        out: &mut Output<'_>,
+    ) -> bool {
+        let start = self.machine.forward(&xyz, angles);
+        let n = ((q - p).abs() / PIECE_SWING).ceil().max(1.0) as usize;
+        let j = 1 - k;
+        let mut prev_j = Some(angles[j]);
+        let mut buf = std::mem::take(&mut self.swing_buf);
+        buf.clear();
+        for i in 1..=n {
+            let kv = p + (q - p) * i as f64 / n as f64;
+            let o = self.machine.hold(start.axis, k, kv);
+            let Some(jv) = self.in_limits(j, o.angles[j], prev_j) else {
+                self.swing_buf = buf;
+                return false;
+            };
+            prev_j = Some(jv);
+            let mut a = [0.0; 2];
+            a[k] = kv;
+            a[j] = jv;
+            buf.push((start.tip, a));
+        }
+        for &(tip, a) in &buf {
+            let target = self.joints_at(&tip, a, None, &Joints::NONE);
+            out.push(Block::new(
+                at,
+                BlockKind::Motion(Motion {
+                    kind: MotionKind::Rapid,
+                    target: Target::Joints(target),
+                    feed: m.feed,
+                    written: self.written(),
+                    machine_frame: false,
+                    extra: String::new(),
+                }),
+            ));
+            self.prev = target;
+        }
+        self.swing_buf = buf;
+        true
     }
 
     /// How far (mm) the tip is off the programmed line halfway through the move from the

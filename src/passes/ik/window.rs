@@ -182,7 +182,13 @@ impl Ik {
                 self.offer(&mut cells, slot, choice, walked, from);
                 continue;
             }
-            for (k, choice) in self.branches(&solutions, cutting, walked, from.angles) {
+            for (k, mut choice) in self.branches(&solutions, cutting, walked, from.angles) {
+                // A singular pose with the free rotary unknown before it (the program's
+                // first): its value is as arbitrary as a held one, and the move leaving
+                // the singularity treats it so (`Ik::spread_swing`).
+                if singular.is_some_and(|f| walked[f].is_none()) {
+                    choice.held = singular;
+                }
                 self.offer(&mut cells, k, choice, walked, from);
             }
         }
