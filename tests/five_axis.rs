@@ -480,3 +480,26 @@ fn c_stays_continuous_over_three_turns() {
         - c.iter().cloned().fold(f64::INFINITY, f64::min);
     assert!(span > 1000.0, "C covers {span} deg over three turns");
 }
+
+/// Real NX data whose short cuts pass 0.3 degrees from vertical (fixture's first line):
+/// on the B/C and A/C machines the look-ahead once took the branch whose end only looked
+/// nearer, and densify then flipped inside the cut, the tip 63 mm off. The binary's own
+/// re-reading of the printed text (`--verify`, on for these presets) must pass.
+#[test]
+fn nx_cuts_passing_near_vertical_verify_on_three_machines() {
+    let input = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/fixtures/cl/nx_variable_axis_near_vertical.cl"
+    );
+    for preset in ["emoc-x5", "head-table", "trunnion-bc"] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_ncpost"))
+            .args(["run", "--preset", preset, input, "-o", "-"])
+            .output()
+            .expect("run ncpost");
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{preset}: {stderr}");
+        assert!(!stderr.contains("verify::"), "{preset}: {stderr}");
+        let printed = printed_motions(&String::from_utf8_lossy(&o.stdout));
+        assert!(printed.len() > 200, "{preset}: {} motions", printed.len());
+    }
+}
