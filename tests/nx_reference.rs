@@ -90,17 +90,27 @@ fn trunnion_bc_finds_the_angles_nx_posted_for_a_haas_umc750() {
     let theirs = nx_angles(&nx);
     assert_eq!(ours.0.len(), theirs.len(), "motion counts");
     assert!(theirs.len() > 300);
-    let mut flipped = 0;
+    let mut switches = 0;
+    let mut last: Option<(bool, f64)> = None;
     for (k, (&(b, c), &(nb, nc))) in ours.0.iter().zip(&theirs).enumerate() {
         let same = (b - nb).abs() < 2e-3 && wrap(c - nc).abs() < 2e-3;
         let other = (b + nb).abs() < 2e-3 && wrap(c - nc - 180.0).abs() < 2e-3;
         assert!(same || other, "motion {k}: ours B{b} C{c}, NX B{nb} C{nc}");
-        flipped += other as usize;
+        // Where the tool axis passes close by vertical, NX's post lets B cross zero (the
+        // axis through vertical, up to 0.3 deg off the programmed one) while ncpost keeps
+        // B's sign and swings C with the axis's azimuth, holding the axis tolerance. The
+        // two then continue on opposite branches: a switch only between two motions
+        // within 2 deg of vertical, never back and forth elsewhere.
+        if let Some((was_same, prev_b)) = last
+            && was_same != same
+        {
+            assert!(
+                prev_b.abs() < 2.0 && nb.abs() < 2.0,
+                "motion {k}: branch switch away from vertical (B{prev_b} -> B{nb})"
+            );
+            switches += 1;
+        }
+        last = Some((same, nb));
     }
-    // One branch for the whole program: no flip back and forth.
-    assert!(
-        flipped == 0 || flipped == theirs.len(),
-        "{flipped} of {} on the other branch",
-        theirs.len()
-    );
+    assert!(switches <= 2, "{switches} branch switches against NX");
 }
