@@ -447,6 +447,8 @@ mod tests {
             fresh: line == 1,
             material: 0.0,
             arc: None,
+            restore: 0.0,
+            machine: false,
             partial: false,
             line,
         }
