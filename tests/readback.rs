@@ -332,9 +332,18 @@ fn verify_text(
     (figures, codes)
 }
 
-/// The printed program of `source` on `preset`.
-fn printed(preset: &Preset, source: &str) -> String {
-    compile_str(source, preset).unwrap_or_else(|d| panic!("{d:?}"))
+/// The polar printer's table centre in the tests' programs.
+const CENTER: [f64; 2] = [0.0, 0.0];
+
+/// The printed program of `source` on the polar printer, which its readback accepts:
+/// the preset, the text and the figures.
+fn accepted(source: &str) -> (Preset, String, Figures) {
+    let preset = polar_preset(CENTER);
+    let text = compile_str(source, &preset).unwrap_or_else(|d| panic!("{d:?}"));
+    let (f, codes) = verify_text(&preset, CENTER, source, &text);
+    assert!(codes.is_empty(), "{codes:?} {f:?}\n{text}");
+    assert_eq!(f.unmatched, 0, "{f:?}");
+    (preset, text, f)
 }
 
 /// Rewrites the word `letter` of printed line `k` (0-based) by `f`.
@@ -365,23 +374,18 @@ fn g1_lines(text: &str) -> Vec<usize> {
 /// An arc whose end lies 0.012 mm inside its start's circle (within the controllers'
 /// arc tolerance, so the frontend keeps it): the controller and `polar-ik` move it as a
 /// spiral (the radius going linearly with the angle), and so does the printed program.
-/// Measured against the start's circle it would be 0.012 mm off at its end; against the spiral it is within the tolerance. One printed point
-/// moved 0.05 mm off the spiral (r larger) is rejected.
+/// Measured against the start's circle it would be 0.012 mm off at its end; against the
+/// spiral it is within the tolerance. One printed point moved 0.05 mm outwards on the
+/// arm (r larger) leaves the spiral and is rejected, at its line.
 #[test]
 fn polar_spiral_arc_is_measured_against_the_spiral() {
-    let center = [0.0, 0.0];
-    let preset = polar_preset(center);
     let source = "G21\nG90\nG0 X55 Y10 F6000\nG3 X25.012 Y10 I-15 J0 F1200\n";
-    let text = printed(&preset, source);
-    let (f, codes) = verify_text(&preset, center, source, &text);
-    assert!(codes.is_empty(), "{codes:?} {f:?}\n{text}");
-    assert!(f.tip.value <= 0.01, "{f:?}");
-    assert!(f.time.value <= 0.01, "{f:?}");
-    assert_eq!(f.unmatched, 0, "{f:?}");
+    let (preset, text, f) = accepted(source);
+    assert!(f.tip.value <= 0.01 && f.time.value <= 0.01, "{f:?}");
     let g1 = g1_lines(&text);
     assert!(g1.len() > 6, "the arc is printed in pieces:\n{text}");
     let wrong = edit_word(&text, g1[g1.len() / 2], 'X', |r| r + 0.05);
-    let (f, codes) = verify_text(&preset, center, source, &wrong);
+    let (f, codes) = verify_text(&preset, CENTER, source, &wrong);
     assert!(codes.contains(&"verify::tip"), "{codes:?} {f:?}");
     assert_eq!(f.tip.line as usize, g1[g1.len() / 2] + 1, "{f:?}");
 }
@@ -391,12 +395,8 @@ fn polar_spiral_arc_is_measured_against_the_spiral() {
 /// time. Printed 5 % faster, it is rejected.
 #[test]
 fn polar_arc_time_is_the_arc_length_at_the_feed() {
-    let center = [0.0, 0.0];
-    let preset = polar_preset(center);
     let source = "G21\nG90\nG0 X60.1 Y20 F6000\nG2 X59.9 Y20 I-0.1 J0 F600\nG0 X70 Y20 F6000\n";
-    let text = printed(&preset, source);
-    let (f, codes) = verify_text(&preset, center, source, &text);
-    assert!(codes.is_empty(), "{codes:?} {f:?}\n{text}");
+    let (preset, text, f) = accepted(source);
     assert!(f.time.value < 0.002, "{f:?}");
     let mut wrong = text.clone();
     for k in g1_lines(&text) {
@@ -404,7 +404,7 @@ fn polar_arc_time_is_the_arc_length_at_the_feed() {
             wrong = edit_word(&wrong, k, 'F', |f| f * 1.05);
         }
     }
-    let (f, codes) = verify_text(&preset, center, source, &wrong);
+    let (f, codes) = verify_text(&preset, CENTER, source, &wrong);
     assert!(codes.contains(&"verify::time"), "{codes:?} {f:?}\n{wrong}");
     assert!(f.time.value > 0.04, "{f:?}");
 }
@@ -414,20 +414,15 @@ fn polar_arc_time_is_the_arc_length_at_the_feed() {
 /// programmed move is never reached.
 #[test]
 fn polar_machine_frame_move_is_matched() {
-    let center = [0.0, 0.0];
-    let preset = polar_preset(center);
     let source = "G21\nG90\nG0 X10 Y0 Z5 F6000\nG1 X20 Y0 Z0.2 F1200\nG1 X30 Y5\nG53 G0 Z0\n";
-    let text = printed(&preset, source);
+    let (preset, text, _) = accepted(source);
     assert!(text.contains("G53 G0 Z0"), "{text}");
-    let (f, codes) = verify_text(&preset, center, source, &text);
-    assert!(codes.is_empty(), "{codes:?} {f:?}\n{text}");
-    assert_eq!(f.unmatched, 0, "{f:?}");
     let wrong: String = text
         .lines()
         .filter(|l| !l.starts_with("G53"))
         .map(|l| format!("{l}\n"))
         .collect();
-    let (f, codes) = verify_text(&preset, center, source, &wrong);
+    let (f, codes) = verify_text(&preset, CENTER, source, &wrong);
     assert!(codes.contains(&"verify::unmatched"), "{codes:?} {f:?}");
     assert_eq!((f.unmatched, f.unmatched_line), (1, 6), "{f:?}");
 }
@@ -438,12 +433,9 @@ fn polar_machine_frame_move_is_matched() {
 /// move's start (as if the whole move printed) is rejected.
 #[test]
 fn polar_prime_after_a_retraction_starts_where_the_restore_ends() {
-    let center = [0.0, 0.0];
-    let preset = polar_preset(center);
     let source = "G21\nG90\nM83\nG0 X10 Y30 F6000\nG1 X30 Y30 E0.8 F1200\nG1 E-2 F2400\nG0 X40 Y30 F6000\nG1 X100 Y30 E4 F1200\nG0 X110 Y30 F6000\n";
-    let text = printed(&preset, source);
-    let (f, codes) = verify_text(&preset, center, source, &text);
-    assert!(codes.is_empty(), "{codes:?} {f:?}\n{text}");
+    let (preset, text, f) = accepted(source);
+    // The valve opens its delay ahead of the block where the restore ends.
     assert!(f.valve.value <= 0.001, "{f:?}");
     assert!(f.material_block.value <= 0.01, "{f:?}");
     // The open command of the prime, moved to just before the prime's first piece (the
@@ -464,7 +456,7 @@ fn polar_prime_after_a_retraction_starts_where_the_restore_ends() {
     let cmd = moved.remove(open);
     moved.insert(first - 1, cmd);
     let wrong = moved.join("\n") + "\n";
-    let (f, codes) = verify_text(&preset, center, source, &wrong);
+    let (f, codes) = verify_text(&preset, CENTER, source, &wrong);
     assert!(codes.contains(&"verify::valve"), "{codes:?} {f:?}\n{wrong}");
     assert!(f.valve.value > 0.05, "{f:?}");
 }
