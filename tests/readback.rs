@@ -266,3 +266,197 @@ fn polar_printer_verifies_a_corpus_slicer_file() {
     assert!(figure(r, "per file (") > 5000.0, "{r}");
     assert!(figure(r, "time") <= 1.0, "{r}");
 }
+
+// ---- The readback's own reading of polar programs (arcs, G53, primes): each printed
+// program ncpost writes is accepted, and the same text made wrong is rejected. The
+// programmed path is tapped from the frontend's IR as `--verify` taps it before the
+// machine passes, and the text goes through the same reader and checker.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+
+use ncpost::front::gcode::{Options, parse_str};
+use ncpost::motion::Model;
+use ncpost::pipeline::compile_str;
+use ncpost::preset::Preset;
+use ncpost::readback::{
+    Checker, Figures, Kinematics, Queue, Reader, Settings, Tap, Tolerances, Verifier,
+};
+
+/// The polar printer preset with `polar-ik` centred at `center`.
+fn polar_preset(center: [f64; 2]) -> Preset {
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/passes/polar-printer.toml"
+    ))
+    .expect("built-in preset")
+    .replace(
+        "center = [0.0, 0.0]",
+        &format!("center = [{:?}, {:?}]", center[0], center[1]),
+    );
+    Preset::from_toml(&text).expect("the preset parses")
+}
+
+/// Re-reads `printed` against the programmed path of the G-code `source` on `preset`'s
+/// polar printer (centred at `center`): the figures and the codes of the violations.
+fn verify_text(
+    preset: &Preset,
+    center: [f64; 2],
+    source: &str,
+    printed: &str,
+) -> (Figures, Vec<&'static str>) {
+    let polar = preset.polar.as_ref().expect("a polar preset");
+    let kin = Kinematics::Polar {
+        r: polar.r_axis,
+        theta: polar.theta_axis,
+        center,
+        table: [polar.omega_max.to_radians(), polar.alpha_max.to_radians()],
+    };
+    let program = parse_str(source, &Options::default()).expect("the source parses");
+    let mut vertices = VecDeque::new();
+    Tap::new(kin.clone()).record(&program.blocks, &mut vertices);
+    let queue: Queue = Arc::new(Mutex::new(vertices));
+    let controller = preset.controller().cloned().unwrap_or_default();
+    let model = Model::new(&controller);
+    let tol = Tolerances::new(&Settings::default(), 0.01, 0.05);
+    let reader = Reader::new(model.clone(), controller.flavour, Some(polar));
+    let checker = Checker::new(kin, &model, tol, Some(polar), queue);
+    let mut v = Verifier::new(reader, checker, tol, true);
+    v.bytes(printed.as_bytes());
+    let (figures, diags) = v.finish();
+    let codes = diags
+        .iter()
+        .map(|d| d.code)
+        .filter(|&c| c != "verify::report")
+        .collect();
+    (figures, codes)
+}
+
+/// The polar printer's table centre in the tests' programs.
+const CENTER: [f64; 2] = [0.0, 0.0];
+
+/// The printed program of `source` on the polar printer, which its readback accepts:
+/// the preset, the text and the figures.
+fn accepted(source: &str) -> (Preset, String, Figures) {
+    let preset = polar_preset(CENTER);
+    let text = compile_str(source, &preset).unwrap_or_else(|d| panic!("{d:?}"));
+    let (f, codes) = verify_text(&preset, CENTER, source, &text);
+    assert!(codes.is_empty(), "{codes:?} {f:?}\n{text}");
+    assert_eq!(f.unmatched, 0, "{f:?}");
+    (preset, text, f)
+}
+
+/// Rewrites the word `letter` of printed line `k` (0-based) by `f`.
+fn edit_word(text: &str, k: usize, letter: char, f: impl Fn(f64) -> f64) -> String {
+    let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+    lines[k] = lines[k]
+        .split_whitespace()
+        .map(
+            |w| match w.strip_prefix(letter).and_then(|v| v.parse::<f64>().ok()) {
+                Some(v) => format!("{letter}{:.4}", f(v)),
+                None => w.to_string(),
+            },
+        )
+        .collect::<Vec<_>>()
+        .join(" ");
+    lines.join("\n") + "\n"
+}
+
+/// The printed G1 lines' indices.
+fn g1_lines(text: &str) -> Vec<usize> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.starts_with("G1 "))
+        .map(|(k, _)| k)
+        .collect()
+}
+
+/// An arc whose end lies 0.012 mm inside its start's circle (within the controllers'
+/// arc tolerance, so the frontend keeps it): the controller and `polar-ik` move it as a
+/// spiral (the radius going linearly with the angle), and so does the printed program.
+/// Measured against the start's circle it would be 0.012 mm off at its end; against the
+/// spiral it is within the tolerance. One printed point moved 0.05 mm outwards on the
+/// arm (r larger) leaves the spiral and is rejected, at its line.
+#[test]
+fn polar_spiral_arc_is_measured_against_the_spiral() {
+    let source = "G21\nG90\nG0 X55 Y10 F6000\nG3 X25.012 Y10 I-15 J0 F1200\n";
+    let (preset, text, f) = accepted(source);
+    assert!(f.tip.value <= 0.01 && f.time.value <= 0.01, "{f:?}");
+    let g1 = g1_lines(&text);
+    assert!(g1.len() > 6, "the arc is printed in pieces:\n{text}");
+    let wrong = edit_word(&text, g1[g1.len() / 2], 'X', |r| r + 0.05);
+    let (f, codes) = verify_text(&preset, CENTER, source, &wrong);
+    assert!(codes.contains(&"verify::tip"), "{codes:?} {f:?}");
+    assert_eq!(f.tip.line as usize, g1[g1.len() / 2] + 1, "{f:?}");
+}
+
+/// A small arc (radius 0.1 mm, a half turn): its pieces' chords (45° each within the
+/// 0.01 mm tolerance) are 2.5 % shorter than the arc, and the printed feeds give the arc's length its programmed
+/// time. Printed 5 % faster, it is rejected.
+#[test]
+fn polar_arc_time_is_the_arc_length_at_the_feed() {
+    let source = "G21\nG90\nG0 X60.1 Y20 F6000\nG2 X59.9 Y20 I-0.1 J0 F600\nG0 X70 Y20 F6000\n";
+    let (preset, text, f) = accepted(source);
+    assert!(f.time.value < 0.002, "{f:?}");
+    let mut wrong = text.clone();
+    for k in g1_lines(&text) {
+        if text.lines().nth(k).is_some_and(|l| l.contains(" F")) {
+            wrong = edit_word(&wrong, k, 'F', |f| f * 1.05);
+        }
+    }
+    let (f, codes) = verify_text(&preset, CENTER, source, &wrong);
+    assert!(codes.contains(&"verify::time"), "{codes:?} {f:?}\n{wrong}");
+    assert!(f.time.value > 0.04, "{f:?}");
+}
+
+/// A final `G53 G0 Z0` (tool up in the machine frame) is printed as written and read as
+/// a move in the machine frame that reaches its programmed move; without it the
+/// programmed move is never reached.
+#[test]
+fn polar_machine_frame_move_is_matched() {
+    let source = "G21\nG90\nG0 X10 Y0 Z5 F6000\nG1 X20 Y0 Z0.2 F1200\nG1 X30 Y5\nG53 G0 Z0\n";
+    let (preset, text, _) = accepted(source);
+    assert!(text.contains("G53 G0 Z0"), "{text}");
+    let wrong: String = text
+        .lines()
+        .filter(|l| !l.starts_with("G53"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    let (f, codes) = verify_text(&preset, CENTER, source, &wrong);
+    assert!(codes.contains(&"verify::unmatched"), "{codes:?} {f:?}");
+    assert_eq!((f.unmatched, f.unmatched_line), (1, 6), "{f:?}");
+}
+
+/// A retraction, a travel, and a long move that first pushes the retracted E back and
+/// then prints: the material starts to flow in the printed block where the restoring
+/// ends, and the valve opens its delay ahead of that. The open command moved to the
+/// move's start (as if the whole move printed) is rejected.
+#[test]
+fn polar_prime_after_a_retraction_starts_where_the_restore_ends() {
+    let source = "G21\nG90\nM83\nG0 X10 Y30 F6000\nG1 X30 Y30 E0.8 F1200\nG1 E-2 F2400\nG0 X40 Y30 F6000\nG1 X100 Y30 E4 F1200\nG0 X110 Y30 F6000\n";
+    let (preset, text, f) = accepted(source);
+    // The valve opens its delay ahead of the block where the restore ends.
+    assert!(f.valve.value <= 0.001, "{f:?}");
+    assert!(f.material_block.value <= 0.01, "{f:?}");
+    // The open command of the prime, moved to just before the prime's first piece (the
+    // first G1 after the travel's last G0).
+    let lines: Vec<&str> = text.lines().collect();
+    let open = lines
+        .iter()
+        .rposition(|l| l.starts_with("M42 P0 S1"))
+        .expect("an open command");
+    let first = lines[..open]
+        .iter()
+        .rposition(|l| l.starts_with("G0 "))
+        .expect("the travel to the prime")
+        + 2;
+    assert!(lines[first - 1].starts_with("G1 "), "{text}");
+    assert!(open > first + 2, "the open lies within the prime:\n{text}");
+    let mut moved: Vec<&str> = lines.clone();
+    let cmd = moved.remove(open);
+    moved.insert(first - 1, cmd);
+    let wrong = moved.join("\n") + "\n";
+    let (f, codes) = verify_text(&preset, CENTER, source, &wrong);
+    assert!(codes.contains(&"verify::valve"), "{codes:?} {f:?}\n{wrong}");
+    assert!(f.valve.value > 0.05, "{f:?}");
+}

@@ -7,7 +7,7 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
-use super::path::{Kinematics, Pose, Vertex, angle, distance, off_arc, off_segment};
+use super::path::{Kinematics, Pose, Vertex, angle, distance, line_param, off_arc, off_segment};
 use super::reader::{Event, Move};
 use super::{Figures, Tolerances};
 use crate::ir::{AXIS_COUNT, Axis, Feed, FeedMode, Joints, MotionKind};
@@ -88,6 +88,12 @@ pub struct Checker {
     seg_start: f64,
     /// When the first printed move of this segment began (where an extrusion starts).
     seg_first: Option<f64>,
+    /// How far along the segment (its path parameter, 0 to 1) the last printed move of
+    /// it ended.
+    seg_t: f64,
+    /// An extrusion start waiting for the printed path to pass this share of its
+    /// segment (the E before it restores a retraction).
+    deferred: Option<f64>,
     /// A move of this segment started where the controller did not know the position.
     blind: bool,
     /// The segment being traced deposits material.
@@ -137,6 +143,8 @@ impl Checker {
             seg: [0.0; 5],
             seg_start: 0.0,
             seg_first: None,
+            seg_t: 0.0,
+            deferred: None,
             blind: false,
             extruding: false,
             valve: Valve::default(),
@@ -163,8 +171,8 @@ impl Checker {
     pub fn finish(mut self) -> Figures {
         self.refill();
         if let Some(v) = self.queue.front() {
-            self.figures.unmatched = self.queue.len() as u64;
-            self.figures.unmatched_line = v.line;
+            self.unmatched(v.line);
+            self.figures.unmatched += self.queue.len() as u64 - 1;
         }
         if let Some((_, line, source)) = self.valve.start.take().or(self.valve.end.take()) {
             self.figures.valve.note(f64::INFINITY, line, source);
@@ -250,20 +258,52 @@ impl Checker {
         }
     }
 
+    /// Whether a printed pose in the programmed frame reaches `v` (a machine-frame
+    /// vertex is reached only by a printed `G53` move).
     fn hits(&self, pose: &Pose, v: &Vertex) -> bool {
-        distance(pose.0, v.tip) <= self.tol.hit_tip()
+        !v.machine
+            && distance(pose.0, v.tip) <= self.tol.hit_tip()
             && angle(pose.1, v.axis) <= self.tol.hit_axis()
+    }
+
+    /// A programmed vertex the printed program never reaches.
+    fn unmatched(&mut self, source: u32) {
+        if self.figures.unmatched == 0 {
+            self.figures.unmatched_line = source;
+        }
+        self.figures.unmatched += 1;
+    }
+
+    /// A printed `G53` move: it reaches the programmed `G53` move it heads for, in the
+    /// machine frame, and takes its time; where the controller then is in the
+    /// programmed frame is not traced (the programmed path starts afresh after it).
+    fn on_machine_move(&mut self, m: &Move, line: u64) {
+        self.advance(m.seconds);
+        self.last = None;
+        if self.target(0).is_some_and(|t| t.machine) {
+            self.seg = [0.0; 5];
+            self.blind = true;
+            self.close(line);
+        }
     }
 
     fn on_move(&mut self, m: &Move, line: u64) {
         self.margins(&m.to, line);
+        if m.machine {
+            self.on_machine_move(m, line);
+            return;
+        }
         let start = self.pose(&m.from);
         let end = self.kin.printed(&m.to);
         self.last = Some((m.to, end));
         // A programmed segment of no length is not printed: step over it.
         while let (Some(p), Some(t)) = (self.prev, self.target(0)) {
             // (A full circle ends where it starts, but it is printed.)
-            if self.hits(&end, &t) || !self.hits(&(p.tip, p.axis), &t) || t.arc.is_some() {
+            if self.hits(&end, &t)
+                || !self.hits(&(p.tip, p.axis), &t)
+                || t.arc.is_some()
+                || t.machine
+            {
                 break;
             }
             self.close(line);
@@ -282,17 +322,32 @@ impl Checker {
             .union(m.to.known)
             .difference(m.from.known)
             .is_empty();
+        let (path, t) = self.sample(m, [start, end], &target, line);
+        if self
+            .deferred
+            .is_some_and(|share| t > share || self.hits(&end, &target))
+        {
+            // The retraction is restored within this printed block: the screw's speed is
+            // one per block, so the material flows from the block's start.
+            self.deferred = None;
+            self.extrusion_start(line, target.line);
+        }
         self.advance(m.seconds);
-        let path = self.sample(m, [start, end], &target, line);
-        // The programmed time of a 5-axis segment is its straight line at the programmed
-        // feed, and the pieces' ends lie on that line: each piece counts its chord. The
-        // joint-linear path between them bulges off the line within the tip tolerance
-        // (checked above); its extra length, up to a few per cent on short pieces with
-        // the whole tolerance's sag, is no time the program asked for.
-        let length = if self.turns_tool && m.arc.is_none() {
-            distance(start.0, end.0)
-        } else {
-            path
+        let length = match (target.arc, self.prev) {
+            // A programmed arc's time is its own length's, however its pieces cut it.
+            (Some(arc), Some(p)) if !target.rapid => {
+                let n = arc.normal;
+                let run = std::mem::replace(&mut self.seg_t, t);
+                arc.length(run, t, target.tip[n] - p.tip[n])
+            }
+            // The programmed time of a 5-axis segment is its straight line at the
+            // programmed feed, and the pieces' ends lie on that line: each piece counts
+            // its chord. The joint-linear path between them bulges off the line within
+            // the tip tolerance (checked in `sample`); its extra length, up to a few per
+            // cent on short pieces with the whole tolerance's sag, is no time the program
+            // asked for.
+            _ if self.turns_tool && m.arc.is_none() => distance(start.0, end.0),
+            _ => path,
         };
         self.seg[0] += m.seconds;
         self.seg[3] += length;
@@ -310,7 +365,9 @@ impl Checker {
             // Vertex `j` was missed: how far its segment ended from it counts (unless
             // the controller did not know where it was), and the printed path goes on
             // with the next one.
-            if !(target.partial || target.fresh || self.blind) {
+            if target.machine {
+                self.unmatched(target.line);
+            } else if !(target.partial || target.fresh || self.blind) {
                 self.figures
                     .tip
                     .note(distance(start.0, target.tip), line, target.line);
@@ -321,8 +378,15 @@ impl Checker {
     }
 
     /// Samples the printed move `m` against the segment leading to `target`; returns
-    /// the printed tip's path length.
-    fn sample(&mut self, m: &Move, [start, end]: [Pose; 2], target: &Vertex, line: u64) -> f64 {
+    /// the printed tip's path length and how far along the segment the move ends (its
+    /// path parameter; 0 when neither its arc nor an extrusion start waits for it).
+    fn sample(
+        &mut self,
+        m: &Move,
+        [start, end]: [Pose; 2],
+        target: &Vertex,
+        line: u64,
+    ) -> (f64, f64) {
         let check = !(target.rapid || target.fresh || m.rapid || self.blind) && self.prev.is_some();
         let a = self.prev.map_or(start, |p| (p.tip, p.axis));
         let arc = m.arc.and_then(|arc| ArcPath::new(&m.from, &m.to, &arc));
@@ -345,7 +409,7 @@ impl Checker {
             length += distance(last, pose.0);
             last = pose.0;
             if check {
-                let tip = off_segment(pose.0, a.0, target.tip, target.arc);
+                let tip = off_segment(pose.0, a.0, target.tip, target.arc.as_ref());
                 self.figures.tip.note(tip, line, target.line);
                 if self.turns_tool {
                     let axis = off_arc(pose.1, a.1, target.axis);
@@ -353,7 +417,13 @@ impl Checker {
                 }
             }
         }
-        length
+        let t = match target.arc {
+            _ if self.hits(&end, target) => 1.0,
+            Some(arc) => arc.param(end.0, a.0, self.seg_t),
+            None if self.deferred.is_some() => line_param(end.0, a.0, target.tip),
+            None => 0.0,
+        };
+        (length, t)
     }
 
     /// Seconds the controller needs for `m` at its axes' caps alone (0 without caps).
@@ -378,6 +448,10 @@ impl Checker {
             return;
         };
         let [printed, fast, slow, length, material] = std::mem::take(&mut self.seg);
+        self.seg_t = 0.0;
+        if self.deferred.take().is_some() {
+            self.extrusion_start(line, v.line);
+        }
         let blind = std::mem::take(&mut self.blind);
         let traced = !v.fresh && self.prev.is_some() && !blind;
         if traced && !v.rapid && v.feed > 0.0 && length > ZERO_TIP && fast > 0.0 {
@@ -415,7 +489,9 @@ impl Checker {
         // Segments of no length are stepped over: the state is the last traced one's.
         let was = std::mem::replace(&mut self.extruding, target.material > 1e-9);
         let is = self.extruding;
-        if is && !was {
+        if is && !was && target.restore > 0.0 && self.prev.is_some() {
+            self.deferred = Some(target.restore);
+        } else if is && !was {
             self.extrusion_start(line, target.line);
         } else if was && !is {
             self.extrusion_end(line, target.line);

@@ -24,7 +24,7 @@ mod path;
 mod reader;
 
 pub use check::{Checker, Queue};
-pub use path::{Kinematics, Tap, Vertex};
+pub use path::{Kinematics, Spiral, Tap, Vertex};
 pub use reader::{Event, Move, Reader, dwell_p_unit};
 
 use serde::{Deserialize, Serialize};
@@ -447,6 +447,8 @@ mod tests {
             fresh: line == 1,
             material: 0.0,
             arc: None,
+            restore: 0.0,
+            machine: false,
             partial: false,
             line,
         }

@@ -2,8 +2,11 @@
 //! programmed motion block (the IR before the machine passes), and the one kinematic chain
 //! that maps printed joints back to the tool tip and axis in the programmed frame.
 
+use std::f64::consts::TAU;
+
 use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target, Tracker};
 use crate::machine::Machine;
+use crate::motion::arc::ArcPath;
 use crate::motion::polar_point;
 
 /// How printed joint values map to the programmed tool pose.
@@ -136,9 +139,16 @@ pub struct Vertex {
     pub fresh: bool,
     /// Material the segment deposits (its E increase), slicer E units.
     pub material: f64,
-    /// An arc's centre and the index (0 = X, 1 = Y, 2 = Z) of its plane's normal: the
-    /// deviation is measured from its circle.
-    pub arc: Option<([f64; 3], usize)>,
+    /// The arc the segment programs: the deviation is measured from it, and its length
+    /// is the programmed time's.
+    pub arc: Option<Spiral>,
+    /// The share of the segment's E increase that restores a retraction (0 to 1): the
+    /// slicer pushes back what it retracted before any material flows, so the extrusion
+    /// starts that far into the segment.
+    pub restore: f64,
+    /// A `G53` move: its end is in the machine frame, which the programmed frame's
+    /// offsets do not reach; it is matched by the printed program's `G53` move.
+    pub machine: bool,
     /// The target leaves X or Y unknown (before homing ends, say): a printed end whose
     /// place in the plane the controller does not know reaches it. (An unknown Z counts
     /// as 0 on both sides.)
@@ -179,8 +189,9 @@ impl Tap {
     }
 
     fn vertex(&mut self, b: &Block) -> Option<Vertex> {
-        let known = self.tracker.pos().known;
-        let before = self.tracker.pos().get(Axis::E);
+        let from = *self.tracker.pos();
+        let known = from.known;
+        let before = from.get(Axis::E);
         let step = self.tracker.update(b);
         let BlockKind::Motion(m) = &b.kind else {
             if !step.forgotten.is_empty() || !step.declared.is_empty() {
@@ -195,17 +206,26 @@ impl Tap {
                 (tip, axis, j.get(Axis::E))
             }
         };
-        let material = match (before, e) {
+        let (material, restore) = match (before, e) {
             (Some(a), Some(b)) => {
-                let net = b - a - self.retracted;
+                let de = b - a;
+                // The E that restores the retraction comes first in the move.
+                let restore = if de > 0.0 {
+                    self.retracted.min(de) / de
+                } else {
+                    0.0
+                };
+                let net = de - self.retracted;
                 self.retracted = (-net).max(0.0);
-                net.max(0.0)
+                (net.max(0.0), restore)
             }
-            _ => 0.0,
+            _ => (0.0, 0.0),
         };
         let rapid = m.kind == MotionKind::Rapid;
-        let arc = match m.kind {
-            MotionKind::Arc(a) => Some((a.center.into(), a.plane.axes().2.index())),
+        let arc = match (m.kind, &m.target) {
+            (MotionKind::Arc(a), Target::Joints(j)) => {
+                ArcPath::new(&from, j, &a).map(|p| Spiral::new(&p))
+            }
             _ => None,
         };
         // A move from a position not known (after homing, the first one) has no
@@ -227,6 +247,8 @@ impl Tap {
             fresh,
             material,
             arc,
+            restore,
+            machine: m.machine_frame,
             partial: match &m.target {
                 Target::Joints(j) => !(j.known.contains(Axis::X) && j.known.contains(Axis::Y)),
                 Target::Pose(_) => false,
@@ -253,61 +275,160 @@ pub fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
     norm(sub(a, b))
 }
 
-/// Distance of `p` from the programmed segment `a → b` (an arc about centre `c` with
-/// its plane's normal on coordinate `n`: the distance from its circle in the plane, with
-/// the normal coordinate between the ends).
-pub fn off_segment(p: [f64; 3], a: [f64; 3], b: [f64; 3], arc: Option<([f64; 3], usize)>) -> f64 {
-    if let Some((c, n)) = arc {
-        let (u, v) = ((n + 1) % 3, (n + 2) % 3);
-        let radius = (a[u] - c[u]).hypot(a[v] - c[v]);
-        let radial = (p[u] - c[u]).hypot(p[v] - c[v]) - radius;
+/// A programmed arc as the controller and `polar-ik` move it ([`ArcPath`]): in the plane
+/// with normal coordinate `normal`, about `center`, the radius going linearly with the
+/// angle swept from the start's to the end's (a circle when they are equal, a spiral
+/// when the end lies off the start's circle).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Spiral {
+    /// Centre (its coordinate along the normal unused), mm.
+    pub center: [f64; 3],
+    /// Index (0 = X, 1 = Y, 2 = Z) of the plane's normal.
+    pub normal: usize,
+    /// Signed angle swept, rad (negative clockwise), full turns included.
+    pub sweep: f64,
+    /// Radius at the start and at the end, mm.
+    pub radii: [f64; 2],
+}
+
+impl Spiral {
+    /// The spiral of an arc block's path.
+    pub fn new(p: &ArcPath) -> Spiral {
+        let mut center = [0.0; 3];
+        center[p.u.index()] = p.centre[0];
+        center[p.v.index()] = p.centre[1];
+        Spiral {
+            center,
+            normal: p.n.index(),
+            sweep: p.sweep,
+            radii: [p.r0, p.r1],
+        }
+    }
+
+    /// The plane's coordinates `(u, v)`.
+    fn plane(&self) -> (usize, usize) {
+        ((self.normal + 1) % 3, (self.normal + 2) % 3)
+    }
+
+    /// The radius at path parameter `t`.
+    fn radius_at(&self, t: f64) -> f64 {
+        self.radii[0] + (self.radii[1] - self.radii[0]) * t
+    }
+
+    /// The path parameter (0 at the start `a`, 1 at the end) of the point of the spiral
+    /// at `p`'s angle about the centre; of the turns that pass that angle, the one
+    /// nearest `near`. An angle outside the sweep counts at the nearer end.
+    pub fn param(&self, p: [f64; 3], a: [f64; 3], near: f64) -> f64 {
+        let (u, v) = self.plane();
+        let c = self.center;
+        let (au, av) = (a[u] - c[u], a[v] - c[v]);
+        let (pu, pv) = (p[u] - c[u], p[v] - c[v]);
+        let total = self.sweep.abs();
+        if total == 0.0 {
+            return 0.0;
+        }
+        // The one angle: from the start to p, in the sweep's direction, in [0, 2π).
+        let turned = (au * pv - av * pu).atan2(au * pu + av * pv);
+        let alpha = (turned * self.sweep.signum()).rem_euclid(TAU);
+        if alpha > total {
+            return if alpha - total < TAU - alpha {
+                1.0
+            } else {
+                0.0
+            };
+        }
+        let turns = ((total - alpha) / TAU).floor();
+        let k = ((near * total - alpha) / TAU).round().clamp(0.0, turns);
+        (alpha + k * TAU) / total
+    }
+
+    /// Distance of `p` from the spiral that starts at `a` and ends at `b`: from the
+    /// radius at `p`'s angle in the plane (the turn whose radius is nearest `p`'s), with
+    /// the normal coordinate between the ends.
+    fn off(&self, p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> f64 {
+        let (u, v) = self.plane();
+        let c = self.center;
+        let rho = (p[u] - c[u]).hypot(p[v] - c[v]);
+        let [r0, r1] = self.radii;
+        let t = if r1 == r0 {
+            0.0
+        } else {
+            self.param(p, a, (rho - r0) / (r1 - r0))
+        };
+        let radial = rho - self.radius_at(t);
+        let n = self.normal;
         let (lo, hi) = (a[n].min(b[n]), a[n].max(b[n]));
         let dn = (lo - p[n]).max(p[n] - hi).max(0.0);
-        return radial.hypot(dn);
+        radial.hypot(dn)
     }
+
+    /// Length of the stretch from parameter `t0` to `t1`, `dn` the whole arc's travel
+    /// along the normal, mm: the radius at its middle along the angle, with the radius
+    /// change and the normal travel (as `polar-ik` times its pieces).
+    pub fn length(&self, t0: f64, t1: f64, dn: f64) -> f64 {
+        let dt = (t1 - t0).abs();
+        let along = self.radius_at(0.5 * (t0 + t1)) * self.sweep.abs() * dt;
+        along
+            .hypot((self.radii[1] - self.radii[0]) * dt)
+            .hypot(dn * dt)
+    }
+}
+
+/// Distance of `p` from the programmed segment `a → b` (an arc: from its [`Spiral`]).
+pub fn off_segment(p: [f64; 3], a: [f64; 3], b: [f64; 3], arc: Option<&Spiral>) -> f64 {
+    if let Some(s) = arc {
+        return s.off(p, a, b);
+    }
+    let t = line_param(p, a, b);
+    let d = sub(b, a);
+    distance(p, [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]])
+}
+
+/// The parameter (0 at `a`, 1 at `b`) of the point of the line segment `a → b` nearest
+/// `p`.
+pub fn line_param(p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> f64 {
     let d = sub(b, a);
     let len2 = dot(d, d);
-    let t = if len2 > 0.0 {
+    if len2 > 0.0 {
         (dot(sub(p, a), d) / len2).clamp(0.0, 1.0)
     } else {
         0.0
-    };
-    distance(p, [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]])
+    }
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
 }
 
 /// Angle, degrees, between unit vectors.
 pub fn angle(a: [f64; 3], b: [f64; 3]) -> f64 {
-    let cross = [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ];
-    norm(cross).atan2(dot(a, b)).to_degrees()
+    norm(cross(a, b)).atan2(dot(a, b)).to_degrees()
 }
 
 /// Angle, degrees, of the unit vector `p` from the great-circle arc `a → b` (the tool
-/// axis the programmed segment sweeps).
+/// axis the programmed segment sweeps): from the great circle where `p`'s foot on it
+/// lies between the ends, else from the nearer end.
 pub fn off_arc(p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> f64 {
-    let n = [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ];
+    let n = cross(a, b);
     let nn = norm(n);
-    let ends = angle(p, a).min(angle(p, b));
-    if nn < 1e-12 {
-        return ends;
+    if nn >= 1e-12 {
+        // The foot of p on the great circle lies on the (shorter) arc when it is turned
+        // from a towards b and from itself on towards b, both about the normal a × b.
+        let foot = sub(p, scale(n, dot(p, n) / (nn * nn)));
+        if dot(cross(a, foot), n) >= 0.0 && dot(cross(foot, b), n) >= 0.0 && norm(foot) > 0.0 {
+            return (dot(p, n) / nn).abs().clamp(0.0, 1.0).asin().to_degrees();
+        }
     }
-    let n = [n[0] / nn, n[1] / nn, n[2] / nn];
-    // The foot of p on the great circle lies on the arc when it is on the inner side of
-    // both ends.
-    let foot = sub(p, [n[0] * dot(p, n), n[1] * dot(p, n), n[2] * dot(p, n)]);
-    let within = angle(foot, a) + angle(foot, b) <= angle(a, b) + 1e-9;
-    if within && norm(foot) > 0.0 {
-        dot(p, n).abs().clamp(0.0, 1.0).asin().to_degrees()
-    } else {
-        ends
-    }
+    // The nearer end: the one with the larger cosine (a and b are both unit).
+    angle(p, if dot(p, a) >= dot(p, b) { a } else { b })
+}
+
+fn scale(a: [f64; 3], k: f64) -> [f64; 3] {
+    [a[0] * k, a[1] * k, a[2] * k]
 }
 
 #[cfg(test)]
@@ -320,13 +441,38 @@ mod tests {
         assert!((off_segment([5.0, 0.3, 0.0], a, b, None) - 0.3).abs() < 1e-12);
         assert!((off_segment([12.0, 0.0, 0.0], a, b, None) - 2.0).abs() < 1e-12);
         // An arc of radius 10 about the origin.
-        let c = Some(([0.0, 0.0, 0.0], 2));
+        let circle = Spiral {
+            center: [0.0; 3],
+            normal: 2,
+            sweep: std::f64::consts::FRAC_PI_2,
+            radii: [10.0, 10.0],
+        };
+        let c = Some(&circle);
         let (s, e) = ([10.0, 0.0, 0.0], [0.0, 10.0, 0.0]);
         assert!(
             (off_segment([7.0, 7.0, 0.0], s, e, c) - (98f64.sqrt() - 10.0).abs()).abs() < 1e-12
         );
-        let (x, y) = ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
+        // A spiral from radius 10 to 11 over a quarter turn: 10.5 half way, and the
+        // start's circle is 0.5 off there; two turns of it, the point on the second.
+        let spiral = Spiral {
+            radii: [10.0, 11.0],
+            ..circle
+        };
         let h = std::f64::consts::FRAC_1_SQRT_2;
+        let mid = [10.5 * h, 10.5 * h, 0.0];
+        assert!(off_segment(mid, s, [0.0, 11.0, 0.0], Some(&spiral)) < 1e-12);
+        assert!((off_segment(mid, s, e, c) - 0.5).abs() < 1e-12);
+        assert!((spiral.param(mid, s, 0.0) - 0.5).abs() < 1e-12);
+        let two = Spiral {
+            sweep: 4.0 * std::f64::consts::TAU,
+            radii: [10.0, 14.0],
+            ..circle
+        };
+        let second = [11.125 * h, 11.125 * h, 0.0];
+        assert!(off_segment(second, s, [14.0, 0.0, 0.0], Some(&two)) < 1e-12);
+        assert!((two.param(second, s, 0.4) - 1.125 / 4.0).abs() < 1e-12);
+        assert!((circle.length(0.0, 1.0, 0.0) - 5.0 * std::f64::consts::PI).abs() < 1e-12);
+        let (x, y) = ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
         assert!(off_arc([h, h, 0.0], x, y) < 1e-9);
         let t = 1f64.to_radians();
         let p = [h * t.cos(), h * t.cos(), t.sin()];

@@ -40,6 +40,8 @@ pub struct Move {
     pub rapid: bool,
     /// The arc of a `G2`/`G3` (absolute centre).
     pub arc: Option<Arc>,
+    /// A `G53` move: its words are machine coordinates.
+    pub machine: bool,
     /// Seconds the controller takes.
     pub seconds: f64,
 }
@@ -230,9 +232,14 @@ impl Reader {
             self.pos.forget(lost);
             return Some(Event::Lost(lost));
         }
+        if let Some(m) = w.motion {
+            self.motion = m;
+        }
         if w.set || w.machine {
-            // G92 declares the position; G53 moves in machine coordinates the reader
-            // cannot map: both leave the written axes where the controller says.
+            // G92 declares the position; G53 moves in machine coordinates, which the
+            // reader takes as they are written (it knows no work offsets): both leave the
+            // written axes where the controller says.
+            let from = self.pos;
             for a in Axis::ALL {
                 if let Some(v) = w.axes[a.index()] {
                     self.pos.set(
@@ -245,10 +252,12 @@ impl Reader {
                     );
                 }
             }
-            return None;
-        }
-        if let Some(m) = w.motion {
-            self.motion = m;
+            if w.set || !w.any_axis {
+                return None;
+            }
+            let mut m = self.timed(from, self.pos, &w, scale);
+            m.machine = true;
+            return Some(Event::Move(m));
         }
         if !w.any_axis {
             return None;
@@ -315,6 +324,7 @@ impl Reader {
             to,
             rapid: self.motion == 0,
             arc,
+            machine: false,
             seconds,
         }
     }
