@@ -529,3 +529,106 @@ fn pass_input_changes_the_frontend_options() {
     let bad = dwell("dwell_p_seconds = true").expect_err("unknown field");
     assert!(bad[0].message.contains("dwell_p_seconds"), "{:?}", bad[0]);
 }
+
+/// Runs `ncpost run <args> -` (the binary) on `program`: success, printed program, stderr.
+fn run_cli(program: &str, args: &[&str]) -> (bool, String, String) {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ncpost"))
+        .arg("run")
+        .args(args)
+        .arg("-")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("ncpost runs");
+    let mut stdin = child.stdin.take().expect("stdin");
+    stdin
+        .write_all(program.as_bytes())
+        .expect("program written");
+    drop(stdin);
+    let out = child.wait_with_output().expect("ncpost ends");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// The printed program read back the way `flavour`'s controller reads it (the crate's
+/// readback): each move's end X Y Z (NaN where not known) and whether it is a rapid.
+fn reread(printed: &str, flavour: ncpost::machine::Flavour) -> Vec<(bool, [f64; 3])> {
+    use ncpost::readback::{Event, Reader};
+    let mut r = Reader::new(ncpost::motion::Model::default(), Some(flavour), None);
+    printed
+        .lines()
+        .filter_map(|l| match r.line(l) {
+            Some(Event::Move(m)) => Some((
+                m.rapid,
+                [Axis::X, Axis::Y, Axis::Z].map(|a| m.to.get(a).unwrap_or(f64::NAN)),
+            )),
+            _ => None,
+        })
+        .collect()
+}
+
+/// 01 for RepRapFirmware (`--preset duet-cnc`) and Grbl: `O1` runs three times, each a
+/// `G91 G0 X1` step and a `G99 G81` hole drilled to Z-1 from the R plane 0.25 and left at
+/// R (G99). The printed program, read back as the controller reads it, goes to X1, X2
+/// and X3 at Y0 and drills each to Z-1, as LinuxCNC's expected output does.
+#[test]
+fn basics_run_for_rrf_and_grbl() {
+    use ncpost::machine::Flavour;
+    let src = fixture("linuxcnc_m98m99_01_basics.ngc");
+    for (args, flavour) in [
+        (&["--preset", "duet-cnc"][..], Flavour::RrfCnc),
+        (&["--emit", "grbl"][..], Flavour::Grbl),
+    ] {
+        let (ok, printed, err) = run_cli(&src, args);
+        assert!(ok, "{args:?}: {err}");
+        assert!(
+            !printed.contains("M98") && !printed.contains("M99"),
+            "{printed}"
+        );
+        let mut want = vec![(true, [0.0, 0.0, 0.25])];
+        for hole in 1..=3 {
+            let x = hole as f64;
+            want.push((true, [x, 0.0, 0.25])); // the G91 step, at the initial level
+            want.push((false, [x, 0.0, -1.0])); // feed to the depth
+            want.push((true, [x, 0.0, 0.25])); // back to R (G99)
+        }
+        assert_eq!(reread(&printed, flavour), want, "{args:?}:\n{printed}");
+    }
+}
+
+/// RepRapFirmware's `M98 P"file"` runs a macro file from the SD card: it is no subprogram
+/// of the program, so it passes through unchanged for RepRapFirmware, and the moves around
+/// it print as programmed.
+#[test]
+fn rrf_macro_calls_pass_through() {
+    let src = "G21 G90\nG0 X0 Y0 Z5\nM98 P\"homeall.g\"\nG0 X10 Y5 Z5\nG1 Z-1 F100\nM98 P\"0:/macros/tool change.g\"\nG0 Z5\nM30\n";
+    let (ok, printed, err) = run_cli(src, &["--preset", "duet-cnc"]);
+    assert!(ok, "{err}");
+    assert!(!err.contains("subprograms::"), "{err}");
+    let calls: Vec<&str> = printed.lines().filter(|l| l.contains("M98")).collect();
+    assert_eq!(
+        calls,
+        ["M98 P\"homeall.g\"", "M98 P\"0:/macros/tool change.g\""]
+    );
+    let moves = reread(&printed, ncpost::machine::Flavour::RrfCnc);
+    let ends: Vec<[f64; 3]> = moves.iter().map(|m| m.1).collect();
+    assert_eq!(
+        ends,
+        [
+            [0.0, 0.0, 5.0],
+            [10.0, 5.0, 5.0],
+            [10.0, 5.0, -1.0],
+            [10.0, 5.0, 5.0]
+        ]
+    );
+    // Grbl runs no files: its backend refuses the call, expand-subprograms does not.
+    let (ok, _, err) = run_cli(src, &["--emit", "grbl"]);
+    assert!(!ok);
+    assert!(!err.contains("subprograms::call"), "{err}");
+}

@@ -1,6 +1,6 @@
 //! Reading call lines: Fanuc `M98 P<n> L<count>` and LinuxCNC `o<n> call`.
 
-use super::defs::word_positions;
+use super::defs::{file_call, word_positions};
 use super::lower::{Lowering, OwordCall};
 use super::{Call, Key, Options, Reach};
 use crate::diag::Diagnostic;
@@ -104,9 +104,13 @@ fn oword(c: OwordCall, line: u32, text: &str, inside_flow: bool) -> Call {
     }
 }
 
-/// A Fanuc `M98` call line `text` (line `line`), if it is one.
+/// A Fanuc `M98` call line `text` (line `line`), if it is one (a RepRapFirmware macro
+/// call `M98 P"file.g"` is not: it runs a file on the controller).
 fn fanuc(line: u32, text: &str, options: &Options, inside_flow: bool) -> Option<Call> {
     let not_expanded = |msg, at, help| not_expanded(line, text, msg, at, help);
+    if file_call(text) {
+        return None;
+    }
     let m98 = word_positions(text, 'M')
         .into_iter()
         .find(|(_, _, n)| n.as_deref().and_then(crate::num::parse_decimal) == Some(98.0))?;

@@ -16,6 +16,11 @@
 //! Subprograms may stand anywhere after the main program (usually after `M30`), the
 //! LinuxCNC subroutines anywhere in the file.
 //!
+//! RepRapFirmware's `M98 P"homeall.g"` (a quoted file name) runs a macro file from the
+//! controller's SD card: it is no subprogram of this file and passes through unchanged,
+//! without starting the buffering below. The pipeline runs this pass by default for
+//! Grbl and RepRapFirmware, neither of which has numbered subprograms inside one file.
+//!
 //! # Errors (pointing at the call's line and column)
 //! - `subprograms::missing`: the called program is not defined in the file.
 //! - `subprograms::recursion`: a program calls itself, directly or through others.
