@@ -632,3 +632,36 @@ fn rrf_macro_calls_pass_through() {
     assert!(!ok);
     assert!(!err.contains("subprograms::call"), "{err}");
 }
+
+/// Parameter assignments (`#1 = [#1 + 1]`) move nothing: the positions and the modes,
+/// the canned cycle in force included, stay known after them, and the relative moves
+/// after them print resolved. A G92 offset parameter (`#5212`, Y's) makes Y, and only Y,
+/// unknown. Read back as RepRapFirmware reads the printed program.
+#[test]
+fn parameter_lines_move_nothing_and_forget_nothing() {
+    let src = "G21 G90 G0 X1 Y2 Z3\n#1 = [#1 + 1]\nG91 G1 X1 F100\n#<step> = 2 (named)\nG1 Y1\n#5212 = 4\nG1 X1 Z-1\nG1 Y1\nG90 G98 G81 X5 Y5 Z-1 R1\n#2 = 1\nX6\nG80\nM30\n";
+    let (ok, printed, err) = run_cli(src, &["--preset", "duet-cnc"]);
+    assert!(ok, "{err}");
+    // Only the relative Y move after `#5212` is unknown (line 8), nothing else.
+    assert_eq!(err.matches("gcode::relative-unknown").count(), 1, "{err}");
+    assert!(err.contains(":8:"), "{err}");
+    let moves = reread(&printed, ncpost::machine::Flavour::RrfCnc);
+    let mut want = vec![
+        (true, [1.0, 2.0, 3.0]),
+        (false, [2.0, 2.0, 3.0]),
+        (false, [2.0, 3.0, 3.0]),
+        (false, [3.0, 3.0, 2.0]),
+        (false, [3.0, 4.0, 2.0]), // `G1 Y1` as written, read relatively by the controller
+    ];
+    // G98: each hole from the initial level Z2 down to R1, fed to Z-1, back to Z2; the
+    // second hole (X6) is the cycle still in force after `#2 = 1`.
+    for x in [5.0, 6.0] {
+        want.extend([
+            (true, [x, 5.0, 2.0]),
+            (true, [x, 5.0, 1.0]),
+            (false, [x, 5.0, -1.0]),
+            (true, [x, 5.0, 2.0]),
+        ]);
+    }
+    assert_eq!(moves, want, "\n{printed}");
+}

@@ -117,9 +117,12 @@ impl MainState {
             }
             BlockKind::Verbatim(v) => {
                 v.follow(&mut self.state.pos);
-                if v.modes.is_some() && v.reason == crate::ir::VerbatimReason::Unevaluated {
+                if v.modes.is_some()
+                    && v.reason == crate::ir::VerbatimReason::Unevaluated
+                    && !only_assignments(&v.text)
+                {
                     // As the frontend: a line it could not evaluate leaves the motion mode
-                    // unknown, unless it names one.
+                    // unknown, unless it names one; parameter assignments keep it.
                     self.state.motion = motion_of(&v.text).unwrap_or(MotionMode::None);
                 }
             }
@@ -204,6 +207,12 @@ impl MainState {
         }
         o.offsets = s.offsets;
     }
+}
+
+/// Whether a line only sets parameters (`#1 = [#1 + 1]`).
+fn only_assignments(text: &str) -> bool {
+    let toks: Vec<_> = tokens(text).collect();
+    crate::num::lexer::parameter_assignments(&toks, |_| {})
 }
 
 /// The motion mode a line's G words select, if any.

@@ -390,6 +390,9 @@ enum Unplain {
     Command,
     /// Parameters, expressions or dialect statements.
     Unevaluated,
+    /// Parameter assignments alone (`#1 = [#1 + 1]`): they move nothing; the axes whose
+    /// position a system parameter set there can change.
+    Assignment(crate::ir::AxisSet),
     /// An error was reported.
     Error,
 }
