@@ -285,12 +285,6 @@ fn error_snapshots() {
             (2, 1),
         ),
         (
-            "count_zero",
-            "M98 P1 L0\nM30\nO1\nG0 X1\nM99\n",
-            "subprograms::count",
-            (1, 8),
-        ),
-        (
             "count_fraction",
             "M98 P1 L2.5\nM30\nO1\nG0 X1\nM99\n",
             "subprograms::count",
@@ -663,5 +657,26 @@ fn parameter_lines_move_nothing_and_forget_nothing() {
             (true, [x, 5.0, 2.0]),
         ]);
     }
+    assert_eq!(moves, want, "\n{printed}");
+}
+
+/// `M98 P1 L0` runs O1 no time: LinuxCNC skips the call, and so does the expansion, with
+/// a note; the moves around it print where they were programmed.
+#[test]
+fn l0_skips_the_call() {
+    let src = "G21 G90 G0 X0 Y0 Z5\nM98 P1 L0\nG0 X2\nM98 P1 L2\nG0 Y3\nM30\nO1\nG1 Z-1 F100\nG0 Z5\nM99\n";
+    let (ok, printed, err) = run_cli(src, &["--preset", "duet-cnc"]);
+    assert!(ok, "{err}");
+    assert!(err.contains("O1 is called to run no time (L0)"), "{err}");
+    let moves = reread(&printed, ncpost::machine::Flavour::RrfCnc);
+    let want = [
+        (true, [0.0, 0.0, 5.0]),
+        (true, [2.0, 0.0, 5.0]),
+        (false, [2.0, 0.0, -1.0]),
+        (true, [2.0, 0.0, 5.0]),
+        (false, [2.0, 0.0, -1.0]),
+        (true, [2.0, 0.0, 5.0]),
+        (true, [2.0, 3.0, 5.0]),
+    ];
     assert_eq!(moves, want, "\n{printed}");
 }

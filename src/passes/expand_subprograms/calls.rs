@@ -191,19 +191,21 @@ fn repeat(
         Some((ls, le, Some(lv))) => {
             let v = crate::num::parse_decimal(&lv).unwrap_or(f64::NAN);
             let max = options.max_count;
-            if !(v.fract() == 0.0 && v >= 1.0 && v <= max as f64) {
+            // `L0` runs the subprogram no time: LinuxCNC skips the call (the expansion
+            // is empty, with a note).
+            if !(v.fract() == 0.0 && v >= 0.0 && v <= max as f64) {
                 let why = if v.fract() != 0.0 || !v.is_finite() {
                     "not a whole number"
-                } else if v < 1.0 {
-                    "runs the subprogram no time"
+                } else if v < 0.0 {
+                    "a negative count"
                 } else {
                     "too many repetitions"
                 };
                 return Some(Err(bad(
-                    format!("repeat count `L{lv}` must be a whole number from 1 to {max}"),
+                    format!("repeat count `L{lv}` must be a whole number from 0 to {max}"),
                     (ls, le),
                     why,
-                    "L counts how many times the subprogram runs (L1 or no L: once); remove the call to run it no time",
+                    "L counts how many times the subprogram runs (L1 or no L: once; L0: the call is skipped)",
                 )));
             }
             Ok((number, v as u32, (m98_at.0, le)))

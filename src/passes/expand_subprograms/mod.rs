@@ -25,8 +25,9 @@
 //! - `subprograms::missing`: the called program is not defined in the file.
 //! - `subprograms::recursion`: a program calls itself, directly or through others.
 //! - `subprograms::depth`: calls nest deeper than `max_depth` (default 10).
-//! - `subprograms::count`: `L` is not a whole number from 1 to `max_count` (default
-//!   9999, Fanuc's range). `L0` is an error too (LinuxCNC skips the call; remove the line).
+//! - `subprograms::count`: `L` is not a whole number from 0 to `max_count` (default
+//!   9999, Fanuc's range). `L0` skips the call, as LinuxCNC does, with the note
+//!   `subprograms::skipped` (the program must still exist).
 //! - `subprograms::size`: the expansion would produce more than `max_blocks` blocks. The
 //!   blocks a call makes (its body's blocks times its repeat count, nested calls
 //!   counted the same way) are counted before it is expanded, so a nest of large
