@@ -5,8 +5,8 @@ use super::defs::has_code;
 use super::lower::Lowering;
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, Block, BlockKind, Modal, Motion, MotionKind, MotionMode, OffsetChange,
-    OffsetCode, Target, Tracker,
+    AXIS_COUNT, Axis, Block, BlockKind, Dialect, Modal, Motion, MotionKind, MotionMode,
+    OffsetChange, OffsetCode, Target, Tracker, VerbatimReason,
 };
 use crate::num::lexer::{Tok, tokens};
 
@@ -18,6 +18,9 @@ pub(super) struct MainState {
     front_offsets: [f64; AXIS_COUNT],
     /// A call has been expanded: the frontend's positions may be less than known.
     after_call: bool,
+    /// A line of the program proper has been read (the header, where the frontend
+    /// learns the dialect under `auto`, is over).
+    started: bool,
 }
 
 impl MainState {
@@ -27,6 +30,49 @@ impl MainState {
             state: start,
             front_offsets: [0.0; AXIS_COUNT],
             after_call: false,
+            started: false,
+        }
+    }
+
+    /// Follows what the frontend learns from the header and the retract-mode codes:
+    /// the dialect (`auto`: named in a comment before the program proper) and `G98`/`G99`,
+    /// which the bodies are lowered in.
+    fn follow_reading(&mut self, block: &Block) {
+        if !self.started && self.state.dialect == Dialect::Auto {
+            let named = match &block.kind {
+                BlockKind::Verbatim(v) => Dialect::named_in(&v.text),
+                _ => None,
+            };
+            let named = named.or_else(|| {
+                block
+                    .comments
+                    .iter()
+                    .find_map(|c| Dialect::named_in(&format!("({})", c.text)))
+            });
+            if let Some(d) = named {
+                self.state.read_in(d);
+            }
+        }
+        let text = match &block.kind {
+            BlockKind::Command(c) => c.text.as_str(),
+            BlockKind::Verbatim(v) => v.text.as_str(),
+            BlockKind::Motion(m) => m.extra.as_str(),
+            BlockKind::Comment => return,
+            _ => "",
+        };
+        let delimiter =
+            matches!(&block.kind, BlockKind::Verbatim(v) if v.reason == VerbatimReason::Delimiter);
+        self.started |= !delimiter;
+        for (_, t, _) in tokens(text) {
+            if let Tok::Word(w) = t
+                && w.starts_with(['G', 'g'])
+            {
+                match crate::num::parse_decimal(w[1..].trim_start()) {
+                    Some(98.0) => self.state.retract_to_initial = true,
+                    Some(99.0) => self.state.retract_to_initial = false,
+                    _ => {}
+                }
+            }
         }
     }
 
@@ -91,6 +137,7 @@ impl MainState {
         lowering: &dyn Lowering,
         diags: &mut Vec<Diagnostic>,
     ) -> Block {
+        self.follow_reading(&block);
         if self.after_call
             && let Some((lowered, state)) = self.relower(&block, lowering)
         {
