@@ -5,6 +5,8 @@
 //! G92 offsets, positions), and a property test: a generated program with calls expands to
 //! the same IR as the same program inlined by hand.
 
+mod common;
+
 use std::path::Path;
 
 use ncpost::back::gcode;
@@ -531,28 +533,22 @@ fn pass_input_changes_the_frontend_options() {
 
 /// Runs `ncpost run <args> -` (the binary) on `program`: success, printed program, stderr.
 fn run_cli(program: &str, args: &[&str]) -> (bool, String, String) {
-    use std::io::Write;
-    use std::process::{Command, Stdio};
-    let mut child = Command::new(env!("CARGO_BIN_EXE_ncpost"))
-        .arg("run")
-        .args(args)
-        .arg("-")
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("ncpost runs");
-    let mut stdin = child.stdin.take().expect("stdin");
-    stdin
-        .write_all(program.as_bytes())
-        .expect("program written");
-    drop(stdin);
-    let out = child.wait_with_output().expect("ncpost ends");
+    let out = common::run_stdin(args, program);
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
+}
+
+/// `program` for RepRapFirmware (`--preset duet-cnc`), which must compile without
+/// diagnostics of code `quiet`: the printed program and the moves read back from it.
+fn for_rrf(program: &str, quiet: &str) -> (String, String, Vec<(bool, [f64; 3])>) {
+    let (ok, printed, err) = run_cli(program, &["--preset", "duet-cnc"]);
+    assert!(ok, "{err}");
+    assert!(!err.contains(quiet), "{err}");
+    let moves = reread(&printed, ncpost::machine::Flavour::RrfCnc);
+    (printed, err, moves)
 }
 
 /// The printed program read back the way `flavour`'s controller reads it (the crate's
@@ -607,15 +603,12 @@ fn basics_run_for_rrf_and_grbl() {
 #[test]
 fn rrf_macro_calls_pass_through() {
     let src = "G21 G90\nG0 X0 Y0 Z5\nM98 P\"homeall.g\"\nG0 X10 Y5 Z5\nG1 Z-1 F100\nM98 P\"0:/macros/tool change.g\"\nG0 Z5\nM30\n";
-    let (ok, printed, err) = run_cli(src, &["--preset", "duet-cnc"]);
-    assert!(ok, "{err}");
-    assert!(!err.contains("subprograms::"), "{err}");
+    let (printed, _, moves) = for_rrf(src, "subprograms::");
     let calls: Vec<&str> = printed.lines().filter(|l| l.contains("M98")).collect();
     assert_eq!(
         calls,
         ["M98 P\"homeall.g\"", "M98 P\"0:/macros/tool change.g\""]
     );
-    let moves = reread(&printed, ncpost::machine::Flavour::RrfCnc);
     let ends: Vec<[f64; 3]> = moves.iter().map(|m| m.1).collect();
     assert_eq!(
         ends,
@@ -639,12 +632,10 @@ fn rrf_macro_calls_pass_through() {
 #[test]
 fn parameter_lines_move_nothing_and_forget_nothing() {
     let src = "G21 G90 G0 X1 Y2 Z3\n#1 = [#1 + 1]\nG91 G1 X1 F100\n#<step> = 2 (named)\nG1 Y1\n#5212 = 4\nG1 X1 Z-1\nG1 Y1\nG90 G98 G81 X5 Y5 Z-1 R1\n#2 = 1\nX6\nG80\nM30\n";
-    let (ok, printed, err) = run_cli(src, &["--preset", "duet-cnc"]);
-    assert!(ok, "{err}");
+    let (printed, err, moves) = for_rrf(src, "subprograms::");
     // Only the relative Y move after `#5212` is unknown (line 8), nothing else.
     assert_eq!(err.matches("gcode::relative-unknown").count(), 1, "{err}");
     assert!(err.contains(":8:"), "{err}");
-    let moves = reread(&printed, ncpost::machine::Flavour::RrfCnc);
     let mut want = vec![
         (true, [1.0, 2.0, 3.0]),
         (false, [2.0, 2.0, 3.0]),
@@ -670,10 +661,8 @@ fn parameter_lines_move_nothing_and_forget_nothing() {
 #[test]
 fn l0_skips_the_call() {
     let src = "G21 G90 G0 X0 Y0 Z5\nM98 P1 L0\nG0 X2\nM98 P1 L2\nG0 Y3\nM30\nO1\nG1 Z-1 F100\nG0 Z5\nM99\n";
-    let (ok, printed, err) = run_cli(src, &["--preset", "duet-cnc"]);
-    assert!(ok, "{err}");
+    let (printed, err, moves) = for_rrf(src, "subprograms::count");
     assert!(err.contains("O1 is called to run no time (L0)"), "{err}");
-    let moves = reread(&printed, ncpost::machine::Flavour::RrfCnc);
     let want = [
         (true, [0.0, 0.0, 5.0]),
         (true, [2.0, 0.0, 5.0]),
@@ -695,12 +684,8 @@ fn l0_skips_the_call() {
 /// read in G90 again; the parameter lines move nothing.
 #[test]
 fn loops_drill_linuxcncs_holes() {
-    use ncpost::machine::Flavour;
     let src = fixture("linuxcnc_m98m99_05_loops.ngc");
-    let (ok, printed, err) = run_cli(&src, &["--preset", "duet-cnc"]);
-    assert!(ok, "{err}");
-    assert!(!err.contains("subprograms::modes"), "{err}");
-    let moves = reread(&printed, Flavour::RrfCnc);
+    let (printed, _, moves) = for_rrf(&src, "subprograms::modes");
     // (hole X, the Z it was approached at, depth, the Z it retracted to)
     let mut holes = Vec::new();
     for (k, m) in moves.iter().enumerate() {
@@ -729,13 +714,8 @@ fn loops_drill_linuxcncs_holes() {
 #[test]
 fn distance_mode_left_by_a_body_is_followed() {
     let src = "G21 G90 G0 X0 Y0 Z5\nM98 P1\nG0 X5\nG1 Y2 F100\nG90 G0 X0\nG0 Y0\nM30\nO1\nG91 G0 X1\nM99\n";
-    let (ok, printed, err) = run_cli(src, &["--preset", "duet-cnc"]);
-    assert!(ok, "{err}");
-    assert!(!err.contains("mode-after-call"), "{err}");
-    let ends: Vec<[f64; 3]> = reread(&printed, ncpost::machine::Flavour::RrfCnc)
-        .iter()
-        .map(|m| m.1)
-        .collect();
+    let (printed, _, moves) = for_rrf(src, "mode-after-call");
+    let ends: Vec<[f64; 3]> = moves.iter().map(|m| m.1).collect();
     let want = [
         [0.0, 0.0, 5.0],
         [1.0, 0.0, 5.0], // the body's G91 X1
