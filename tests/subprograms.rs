@@ -311,8 +311,8 @@ fn error_snapshots() {
             (2, 1),
         ),
         (
-            "modes_left_g20",
-            "G0 X0\nM98 P1\nG0 X5\nM30\nO1\nG20 G0 X1\nM99\n",
+            "modes_left_g91",
+            "G0 X0\nM98 P1\nG0 X5\nM30\nO1\nG91 G0 X1\nM99\n",
             "subprograms::modes",
             (2, 1),
         ),
@@ -453,17 +453,12 @@ fn dump_all(blocks: &[Block]) -> Vec<String> {
         .collect()
 }
 
-/// A generated body line: absolute or relative moves (a body may return in G91), feeds,
-/// units and G92.
+/// A generated body line: absolute or relative moves, feeds, units and G92.
 fn body_line() -> impl Strategy<Value = String> {
     prop_oneof![
         (-50i32..50, -50i32..50).prop_map(|(x, y)| format!("G0 X{x} Y{y}")),
         (-50i32..50, 1u32..500).prop_map(|(z, f)| format!("G1 Z{} F{f}", z as f64 / 10.0)),
         (-9i32..9).prop_map(|x| format!("G91 G1 X{x}\nG90")),
-        // A body may end in G91: the lines after its call are read in G91 (LinuxCNC
-        // keeps the modes across M99), up to the next G90.
-        (-9i32..9).prop_map(|x| format!("G91 G1 X{x}")),
-        Just("G90".to_string()),
         (-9i32..9).prop_map(|y| format!("G1 Y{y}")),
         (1i32..9).prop_map(|x| format!("G20 G0 X{x}\nG21")),
         Just("G92 X0".to_string()),
@@ -673,71 +668,4 @@ fn l0_skips_the_call() {
         (true, [2.0, 3.0, 5.0]),
     ];
     assert_eq!(moves, want, "\n{printed}");
-}
-
-/// 05 (LinuxCNC's `M98 P1 L10`, `L0`, `L2` with a `G91 G99 G81` body that sets `#1`) for
-/// RepRapFirmware, which has neither cycles nor subprograms: read back, the printed program
-/// drills the holes of LinuxCNC's expected output (tests/interp/m98m99/05-M98-loops/
-/// expected): X1..X10 at Y0, then after `L0` (skipped) X1 and X2; each from the R plane
-/// Z0.5 (R0.25 above the initial Z0.25, G91) down to Z-0.5 (1 below R) and back to R
-/// (G99). The body returns in G91, and the `G90 G0 X0 Y0 Z0.25` after each call is
-/// read in G90 again; the parameter lines move nothing.
-#[test]
-fn loops_drill_linuxcncs_holes() {
-    let src = fixture("linuxcnc_m98m99_05_loops.ngc");
-    let (printed, _, moves) = for_rrf(&src, "subprograms::modes");
-    // (hole X, the Z it was approached at, depth, the Z it retracted to)
-    let mut holes = Vec::new();
-    for (k, m) in moves.iter().enumerate() {
-        if !m.0 && k >= 1 && k + 1 < moves.len() {
-            holes.push((m.1[0], m.1[1], moves[k - 1].1[2], m.1[2], moves[k + 1].1[2]));
-        }
-    }
-    let want: Vec<_> = (1..=10)
-        .chain(1..=2)
-        .map(|x| (x as f64, 0.0, 0.5, -0.5, 0.5))
-        .collect();
-    assert_eq!(holes, want, "\n{printed}");
-    // Between the series the tool goes back to X0 Y0 Z0.25 (G90 again after the G91 body).
-    let returns = moves
-        .iter()
-        .filter(|m| m.0 && m.1 == [0.0, 0.0, 0.25])
-        .count();
-    assert!(returns >= 2, "\n{printed}");
-}
-
-/// A body that returns in G91 leaves the controller in G91 (LinuxCNC keeps the modes
-/// across M99): the `G0 X5` after the call moves 5 from where the body ended, up to the
-/// `G90` written again. For RepRapFirmware the pass reads it so; for LinuxCNC output
-/// (no expansion) the line is printed as written, with a warning, and no G90 is put
-/// before it.
-#[test]
-fn distance_mode_left_by_a_body_is_followed() {
-    let src = "G21 G90 G0 X0 Y0 Z5\nM98 P1\nG0 X5\nG1 Y2 F100\nG90 G0 X0\nG0 Y0\nM30\nO1\nG91 G0 X1\nM99\n";
-    let (printed, _, moves) = for_rrf(src, "mode-after-call");
-    let ends: Vec<[f64; 3]> = moves.iter().map(|m| m.1).collect();
-    let want = [
-        [0.0, 0.0, 5.0],
-        [1.0, 0.0, 5.0], // the body's G91 X1
-        [6.0, 0.0, 5.0], // G0 X5, still G91
-        [6.0, 2.0, 5.0], // G1 Y2, still G91
-        [0.0, 2.0, 5.0], // G90 again
-        [0.0, 0.0, 5.0],
-    ];
-    assert_eq!(ends, want, "\n{printed}");
-    let (ok, printed, err) = run_cli(src, &["--emit", "gcode"]);
-    assert!(ok, "{err}");
-    assert!(err.contains("gcode::mode-after-call"), "{err}");
-    let after_call: Vec<&str> = printed
-        .lines()
-        .skip_while(|l| !l.ends_with("M98 P1"))
-        .skip(1)
-        .take(3)
-        .collect();
-    // And the G90 written again is printed before the next move.
-    assert_eq!(
-        after_call,
-        ["G0 X5", "G1 Y2 F100", "G21 G90"],
-        "\n{printed}"
-    );
 }

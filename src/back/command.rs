@@ -61,12 +61,6 @@ impl<W: Write> Emitter<W> {
                     self.modes.e_relative = Some(false);
                 } else if n == 83.0 {
                     self.modes.e_relative = Some(true);
-                } else if n == 98.0 {
-                    // The controller runs the subprogram: it returns in the modes its
-                    // body leaves (LinuxCNC keeps them across M99), so the next move
-                    // writes the ones it needs.
-                    self.modes.metric = None;
-                    self.modes.absolute = None;
                 }
             }
         }

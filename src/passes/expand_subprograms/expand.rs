@@ -382,8 +382,9 @@ impl<'a> Expander<'a> {
         if start.inch != end.inch {
             changed.push(if end.inch { "G20 (inches)" } else { "G21 (mm)" });
         }
-        // The distance mode is followed: the frontend reads the moves after a call, up to
-        // the next G90/G91, as written, and they are lowered in the mode the body left.
+        if start.relative != end.relative {
+            changed.push(if end.relative { "G91" } else { "G90" });
+        }
         if start.relative_e != end.relative_e {
             changed.push(if end.relative_e { "M83" } else { "M82" });
         }

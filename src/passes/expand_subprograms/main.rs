@@ -79,44 +79,29 @@ impl MainState {
     /// A line the frontend passed through because a position was unknown after a call
     /// (a relative move, an arc), lowered again now that the position is known; `None`
     /// when it still cannot be lowered to moves alone.
-    fn relower(&self, block: &Block, lowering: &dyn Lowering) -> Option<(Option<Block>, Modal)> {
+    fn relower(&self, block: &Block, lowering: &dyn Lowering) -> Option<(Block, Modal)> {
         let BlockKind::Verbatim(v) = &block.kind else {
             return None;
         };
+        let m = v.modes?;
         if v.reason != crate::ir::VerbatimReason::Unevaluated {
             return None;
         }
         let mut state = self.state;
-        // No modes: a move the frontend read after a call, before G90/G91 was written
-        // again, in the distance mode the body left; that is the state's.
-        if let Some(m) = v.modes {
-            state.inch = m.inch;
-            state.relative = m.relative;
-            if crate::num::lexer::has_word(&v.text, 'E') {
-                state.relative_e = m.relative_e;
-            }
-            if let Some(p) = m.plane {
-                state.plane = p;
-            }
+        state.inch = m.inch;
+        state.relative = m.relative;
+        if crate::num::lexer::has_word(&v.text, 'E') {
+            state.relative_e = m.relative_e;
+        }
+        if let Some(p) = m.plane {
+            state.plane = p;
         }
         let mut low = lowering.body(state);
         let (mut out, mut diags) = (Vec::new(), Vec::new());
         low.line(&v.text, block.span, &mut out, &mut diags);
-        if diags.is_empty() && out.is_empty() && v.modes.is_none() {
-            // Modes or a feed only (after a call, before G90/G91): the state follows the
-            // line, which is left out unless it holds a comment.
-            let commented = tokens(&v.text).any(|t| {
-                matches!(
-                    t.1,
-                    Tok::Comment(_) | Tok::OpenComment(_) | Tok::LineComment(_)
-                )
-            });
-            return Some((commented.then(|| block.clone()), low.state()));
-        }
         let moves_only =
             !out.is_empty() && out.iter().all(|b| matches!(b.kind, BlockKind::Motion(_)));
-        (diags.is_empty() && moves_only && out.len() == 1)
-            .then(|| (Some(out.remove(0)), low.state()))
+        (diags.is_empty() && moves_only && out.len() == 1).then(|| (out.remove(0), low.state()))
     }
 
     /// The state a call's body starts in: what the blocks left, with the modes the frontend
@@ -145,14 +130,13 @@ impl MainState {
         self.after_call = true;
     }
 
-    /// Updates the state with `block` and returns it completed (`None`: a line of modes
-    /// alone, now in the state, which the backend puts out itself).
+    /// Updates the state with `block` and returns it completed.
     pub fn block(
         &mut self,
         mut block: Block,
         lowering: &dyn Lowering,
         diags: &mut Vec<Diagnostic>,
-    ) -> Option<Block> {
+    ) -> Block {
         self.follow_reading(&block);
         if self.after_call
             && let Some((lowered, state)) = self.relower(&block, lowering)
@@ -191,7 +175,7 @@ impl MainState {
             }
             BlockKind::Dwell { .. } | BlockKind::Comment => {}
         }
-        Some(block)
+        block
     }
 
     /// Completes a move from the state (known axes, G92 correction, modal feed) and

@@ -33,15 +33,11 @@
 //!   counted the same way) are counted before it is expanded, so a nest of large
 //!   repeat counts is refused at its call line without being built.
 //! - `subprograms::modes`: a subprogram called from the main program leaves units,
-//!   extruder mode or feed mode different from those it was called in. The frontend read
-//!   the lines after the call in the old modes, so their meaning would be wrong; end the
-//!   subprogram in the modes it started in. (Calls inside bodies are exact: the lines
-//!   after them are lowered here, in the modes the call left.) A different plane is a
-//!   warning. The distance mode is followed instead, as LinuxCNC keeps it across `M99`:
-//!   the frontend passes the lines after a call through as written up to the next
-//!   `G90`/`G91` (it cannot know the mode the body leaves), and this pass lowers them in
-//!   the mode the body left (`M98 P1` with a body ending in `G91`, then `G0 X5`, moves
-//!   5 along X from where the body ended).
+//!   distance mode, extruder mode or feed mode different from those it was called in. The
+//!   frontend read the lines after the call in the old modes, so their meaning would be
+//!   wrong; end the subprogram in the modes it started in. (Calls inside bodies are
+//!   exact: the lines after them are lowered here, in the modes the call left.) A
+//!   different plane is a warning.
 //! - `subprograms::no-m99`: a Fanuc subprogram runs to the end of the file.
 //! - `subprograms::return`: `o<n> return` (an early return) cannot be inlined.
 //!
@@ -246,9 +242,8 @@ impl ExpandSubprograms {
         if self.buffering {
             self.buffer.push(block);
         } else {
-            if let Some(b) = self.main.block(block, &*self.lowering, out.diags) {
-                out.push(b);
-            }
+            let b = self.main.block(block, &*self.lowering, out.diags);
+            out.push(b);
         }
     }
 }
@@ -257,15 +252,10 @@ impl ExpandSubprograms {
 /// unchanged: true without this pass, and taken back by it on the lines it handles.
 const FRONTEND_NOTICES: [&str; 2] = ["gcode::subprogram", "gcode::control-flow"];
 
-/// The frontend's warning that a line after a call passes through in the distance mode
-/// the body leaves: this pass reads such lines in that mode, so it takes it back.
-const AFTER_CALL: &str = "gcode::mode-after-call";
-
 /// Takes back the frontend's warnings ([`FRONTEND_NOTICES`]) on the lines of `blocks` this
 /// pass handles (calls, definitions): the frontend cannot know that the pass follows.
 /// What the pass cannot expand it reports itself (`subprograms::not-expanded`).
 fn take_back_notices(blocks: &[Block], diags: &mut Vec<Diagnostic>) {
-    diags.retain(|d| d.code != AFTER_CALL);
     if !diags.iter().any(|d| FRONTEND_NOTICES.contains(&d.code)) {
         return;
     }
@@ -351,13 +341,13 @@ fn replay(
             Some((Call::Opaque { warning, reach }, _)) => {
                 ex.report(warning);
                 ex.reached.insert(reach);
-                expanded.extend(main.block(block, ex.lowering, &mut ex.diags));
+                expanded.push(main.block(block, ex.lowering, &mut ex.diags));
             }
             Some((Call::Bad(d), _)) => {
                 ex.report(d);
                 expanded.push(block);
             }
-            None => expanded.extend(main.block(block, ex.lowering, &mut ex.diags)),
+            None => expanded.push(main.block(block, ex.lowering, &mut ex.diags)),
         }
     }
     (expanded, def_at)

@@ -125,14 +125,6 @@ impl Lowerer {
             return;
         }
         if out.len() == first {
-            let sets_modes = !parts.fx.g_list.is_empty() || !parts.m_list.is_empty();
-            if self.distance_after_call && (sets_modes || parts.feed_written) {
-                // Modes or a feed set between a call and the next G90/G91: the line goes
-                // along as written, so that `expand-subprograms`, which reads the moves
-                // of this stretch again, sees them (it has no other view of this line).
-                out.push(self.after_call_as_written(text, span, AxisSet::EMPTY, diags));
-                return;
-            }
             if comments.is_empty() {
                 return;
             }
@@ -240,10 +232,8 @@ impl Lowerer {
                 (19, 0) => self.plane = Plane::YZ,
                 (20, 0) => self.inch = true,
                 (21, 0) => self.inch = false,
-                (90, 0) | (91, 0) => {
-                    self.relative = code.0 == 91;
-                    self.distance_after_call = false;
-                }
+                (90, 0) => self.relative = false,
+                (91, 0) => self.relative = true,
                 (90, 1) => self.arc_center_absolute = true,
                 (91, 1) => self.arc_center_absolute = false,
                 (93, 0) => self.feed_mode = FeedMode::InverseTime,

@@ -113,14 +113,8 @@ impl Lowerer {
                     continue;
                 };
                 match (letter, code) {
-                    ('G', (90, 0)) => {
-                        self.relative = false;
-                        self.distance_after_call = false;
-                    }
-                    ('G', (91, 0)) => {
-                        self.relative = true;
-                        self.distance_after_call = false;
-                    }
+                    ('G', (90, 0)) => self.relative = false,
+                    ('G', (91, 0)) => self.relative = true,
                     ('G', (20, 0)) => self.inch = true,
                     ('G', (21, 0)) => self.inch = false,
                     ('G', (17, 0)) => self.plane = Plane::XY,
@@ -188,7 +182,6 @@ impl Lowerer {
         self.pos.forget(clob);
         if call && !self.calls_inline {
             self.feed = None;
-            self.distance_after_call = true;
         }
         let modes = if call {
             // The modes the body starts in (E: M83 alone, not G91).

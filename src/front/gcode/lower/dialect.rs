@@ -84,8 +84,6 @@ impl Lowerer {
             }
             if !self.calls_inline {
                 self.feed = None;
-                // Only a call expand-subprograms can expand (no arguments) is followed.
-                self.distance_after_call = oword_call(text).is_some_and(|c| c.simple);
             }
         }
         out.push(block);

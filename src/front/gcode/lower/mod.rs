@@ -67,11 +67,6 @@ pub(crate) struct Lowerer {
     /// Lowering a subprogram body for `expand-subprograms`: calls (M98, simple o-calls)
     /// are expanded by the caller, so they change no position or feed here.
     calls_inline: bool,
-    /// A subprogram the controller runs was called, and no G90/G91 written since: the
-    /// distance mode is the one its body left (LinuxCNC keeps modes across M99), unknown
-    /// here, so moves travel as written (`expand-subprograms` reads them in the mode the
-    /// body really left).
-    distance_after_call: bool,
     /// The dialect in force: the option's, or under `auto` the one the header names
     /// (until the program starts).
     dialect: Dialect,
@@ -112,7 +107,6 @@ impl Lowerer {
             saw_text: false,
             program_started: false,
             calls_inline: false,
-            distance_after_call: false,
             dialect: Dialect::Auto,
             cycle: cycle::CycleModal::default(),
         };

@@ -38,13 +38,6 @@ impl Lowerer {
     ) -> Option<()> {
         let line_no = span.line;
         let named = mv.named;
-        if self.distance_after_call && !mv.machine_frame {
-            // Read in the distance mode the called body left, which is not known here:
-            // the line travels as written, with nothing put before it that would change
-            // that mode, and its axes are unknown after it.
-            out.push(self.after_call_as_written(text, span, named, diags));
-            return Some(());
-        }
         if self.relative_from_unknown(text, span, mv, out, diags) {
             return Some(());
         }
@@ -110,35 +103,6 @@ impl Lowerer {
         }
         out.push(Block::new(span, BlockKind::Motion(motion)));
         Some(())
-    }
-
-    /// A line between a subprogram call and the next G90/G91, copied as written with a
-    /// warning (`gcode::mode-after-call`); `clobbers` are unknown after it.
-    pub(super) fn after_call_as_written(
-        &mut self,
-        text: &str,
-        span: Span,
-        clobbers: AxisSet,
-        diags: &mut Vec<Diagnostic>,
-    ) -> Block {
-        diags.push(
-            Diagnostic::warning(
-                "gcode::mode-after-call",
-                "after a subprogram call the distance mode is the one its body leaves, which is not known here",
-            )
-            .at_bytes(span.line, text, 0, text.len())
-            .with_label("passes through unchanged")
-            .with_help(
-                "the lines up to the next G90 or G91 are copied as written (expand-subprograms, which --emit rrf and grbl run, reads them in the mode the body left); write G90 or G91 after the call to have them evaluated",
-            ),
-        );
-        self.verbatim(
-            text,
-            span,
-            VerbatimReason::Unevaluated,
-            clobbers,
-            Placement::Inside,
-        )
     }
 
     /// A relative move from an unknown position cannot be made absolute: it travels as
