@@ -669,3 +669,23 @@ fn l0_skips_the_call() {
     ];
     assert_eq!(moves, want, "\n{printed}");
 }
+
+/// A body that returns in G91 breaks only the lines after its call that the frontend read
+/// in G90: with nothing but `M30` (and comments, parameters) after the calls, the program
+/// compiles, and the relative body steps on from call to call as on the controller.
+#[test]
+fn modes_left_by_a_body_matter_only_to_lines_that_follow() {
+    let src = "G21 G90 G0 X0 Y0 Z5\nM98 P1 L2\n(done)\n#1 = 2\nM98 P1\nM30\nO1\nG91 G0 X1\nG1 Z-1 F100\nG0 Z1\nM99\n";
+    let (_, _, moves) = for_rrf(src, "subprograms::modes");
+    let mut want = vec![(true, [0.0, 0.0, 5.0])];
+    for x in 1..=3 {
+        let x = x as f64;
+        want.push((true, [x, 0.0, 5.0]));
+        want.push((false, [x, 0.0, 4.0]));
+        want.push((true, [x, 0.0, 5.0]));
+    }
+    assert_eq!(moves, want);
+    // A move after the call is read in G90 by the frontend but in G91 by the controller.
+    let (ok, _, err) = run_cli(&src.replace("(done)", "G0 X5"), &["--preset", "duet-cnc"]);
+    assert!(!ok && err.contains("subprograms::modes"), "{err}");
+}

@@ -257,7 +257,7 @@ impl MainState {
 }
 
 /// Whether a line only sets parameters (`#1 = [#1 + 1]`).
-fn only_assignments(text: &str) -> bool {
+pub(super) fn only_assignments(text: &str) -> bool {
     let toks: Vec<_> = tokens(text).collect();
     crate::num::lexer::parameter_assignments(&toks, |_| {})
 }

@@ -35,7 +35,10 @@
 //! - `subprograms::modes`: a subprogram called from the main program leaves units,
 //!   distance mode, extruder mode or feed mode different from those it was called in. The
 //!   frontend read the lines after the call in the old modes, so their meaning would be
-//!   wrong; end the subprogram in the modes it started in. (Calls inside bodies are
+//!   wrong; end the subprogram in the modes it started in. Reported only when a line
+//!   after the call, before the next call, depends on those modes (a move, a G92, a
+//!   line passed through in its modes): `M98 P1 L3` followed by `M30` alone is fine,
+//!   whatever modes O1 leaves. (Calls inside bodies are
 //!   exact: the lines after them are lowered here, in the modes the call left.) A
 //!   different plane is a warning.
 //! - `subprograms::no-m99`: a Fanuc subprogram runs to the end of the file.
@@ -96,7 +99,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Block, Span};
+use crate::ir::{Block, BlockKind, Span};
 use calls::main_call;
 use defs::{collect_definitions, subprogram_related};
 use expand::{Expander, Site};
@@ -332,7 +335,9 @@ fn replay(
                 let mut stack = Vec::new();
                 match ex.call(&key, count, start, 1, &mut stack, &site, &mut expanded) {
                     Ok(end) => {
-                        ex.check_modes(&key, &start, &end, &site);
+                        if read_in_modes(blocks, owner, i, ex) {
+                            ex.check_modes(&key, &start, &end, &site);
+                        }
                         main.after_call(end);
                     }
                     Err(()) => expanded.push(block),
@@ -351,4 +356,27 @@ fn replay(
         }
     }
     (expanded, def_at)
+}
+
+/// Whether a block of the main program from `blocks[from]` up to its next call (or its
+/// end) depends on the modes the frontend read it in: a move, a G92, a line it passed
+/// through with the modes it was written in (parameter assignments aside), a command
+/// with coordinates. Only then does a body that changed modes break the lines after
+/// its call (`M98 P1` followed by `M30` alone does not).
+fn read_in_modes(blocks: &[Block], owner: &[Option<Key>], from: usize, ex: &Expander<'_>) -> bool {
+    for (block, own) in blocks.iter().zip(owner).skip(from) {
+        if own.is_some() || main_call(block, ex.options, ex.lowering).is_some() {
+            return false;
+        }
+        let depends = match &block.kind {
+            BlockKind::Motion(_) | BlockKind::Offset(_) => true,
+            BlockKind::Command(c) => c.modes.is_some(),
+            BlockKind::Verbatim(v) => v.modes.is_some() && !main::only_assignments(&v.text),
+            BlockKind::Dwell { .. } | BlockKind::Comment => false,
+        };
+        if depends {
+            return true;
+        }
+    }
+    false
 }
