@@ -689,3 +689,23 @@ fn modes_left_by_a_body_matter_only_to_lines_that_follow() {
     let (ok, _, err) = run_cli(&src.replace("(done)", "G0 X5"), &["--preset", "duet-cnc"]);
     assert!(!ok && err.contains("subprograms::modes"), "{err}");
 }
+
+/// A subroutine defined between moves is passed over by the frontend, which forgets the
+/// positions there; the expansion leaves the definition out and forgets them too, so it
+/// never completes a move with an axis the program does not know (an `E0` on a mill, as
+/// pcb2gcode_al_linuxcnc_back.ngc got once parameter lines stopped forgetting E).
+#[test]
+fn a_definition_between_moves_adds_no_axis() {
+    // The call with an argument keeps the definition in the output.
+    let src = "G21 G90 G0 X0 Y0 Z5\no100 sub\nG0 X1\no100 endsub\n#1 = 2\nG0 Z2\no100 call\nG0 Y3\no100 call [1]\nM30\n";
+    let (printed, _, moves) = for_rrf(src, "subprograms::modes");
+    assert!(
+        !printed.contains(" E") && !printed.contains("M82"),
+        "{printed}"
+    );
+    // Read back (the controller runs the definition's lines too): the moves the main
+    // program makes end where it put them, the expanded call's X1 and the Y3 after it.
+    let ends: Vec<[f64; 3]> = moves.iter().map(|m| m.1).collect();
+    assert_eq!(ends.last(), Some(&[1.0, 3.0, 2.0]), "{printed}");
+    assert!(printed.lines().any(|l| l == "G0 Z2"), "{printed}");
+}

@@ -104,6 +104,17 @@ impl MainState {
         (diags.is_empty() && moves_only && out.len() == 1).then(|| (out.remove(0), low.state()))
     }
 
+    /// Follows the blocks of a definition, which are left out of the output, as the
+    /// frontend did: the positions its lines clobber are unknown after them (the
+    /// completion after a call restores only what the call made unknown).
+    pub fn pass_over(&mut self, blocks: &[Block]) {
+        for b in blocks {
+            if let BlockKind::Verbatim(v) = &b.kind {
+                self.state.pos.forget(v.clobbers);
+            }
+        }
+    }
+
     /// The state a call's body starts in: what the blocks left, with the modes the frontend
     /// recorded on the call.
     pub fn call_state(&self, call: &Block) -> Modal {

@@ -313,11 +313,14 @@ fn replay(
     while i < blocks.len() {
         if let Some(key) = &owner[i] {
             let range = ex.defs[key].blocks.clone();
+            // The frontend passed the definition through, forgetting the positions.
             if range.start == i {
                 def_at.push((expanded.len(), key.clone()));
+                main.pass_over(&blocks[range.clone()]);
                 i = range.end;
             } else {
                 // A duplicate definition's blocks: left out (warned about).
+                main.pass_over(&blocks[i..=i]);
                 i += 1;
             }
             continue;
