@@ -162,11 +162,13 @@ impl Builder {
 
     /// Builds the passes; fails on an unknown pass, bad options or dump point.
     ///
-    /// Grbl has no subprograms: with `emit = grbl`, `expand-subprograms` is put first
-    /// when the preset lacks it, and the run starts with a note saying so.
+    /// Grbl has no subprograms, and RepRapFirmware none inside one file (its `M98 P"file"`
+    /// runs a macro file, which passes through): with `emit = grbl` or `rrf`,
+    /// `expand-subprograms` is put first when the preset lacks it (for Grbl the run starts
+    /// with a note saying so).
     pub fn build(mut self) -> Result<Pipeline, Diagnostic> {
         let mut notes = Vec::new();
-        if self.preset.emit == Emit::Grbl
+        if matches!(self.preset.emit, Emit::Rrf | Emit::Grbl)
             && !self
                 .preset
                 .passes
@@ -180,10 +182,10 @@ impl Builder {
                     options: toml::Table::new(),
                 },
             );
-            notes.push(Diagnostic::note(
+            notes.extend((self.preset.emit == Emit::Grbl).then(|| Diagnostic::note(
                 "grbl::expand-subprograms",
                 "Grbl has no subprograms: expand-subprograms runs first (it was not in the pipeline)",
-            ));
+            )));
         }
         // Neither RepRapFirmware nor Grbl has canned cycles: drill them as moves, after
         // subprograms (whose bodies may hold them) are expanded.

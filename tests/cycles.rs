@@ -7,27 +7,15 @@
 //! cycle programs: its X Y, the depth it reaches, the Z of each feed stroke (the pecks),
 //! the dwells and the height it retracts to.
 
-use std::io::Write;
-use std::process::{Command, Output, Stdio};
+mod common;
+
+use std::process::Output;
 
 /// Runs `ncpost run --emit <emit> -` on `program`, with `extra` arguments.
 fn run(program: &str, emit: &str, extra: &[&str]) -> Output {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_ncpost"))
-        .args(["run", "--emit", emit])
-        .args(extra)
-        .arg("-")
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("ncpost runs");
-    child
-        .stdin
-        .take()
-        .expect("stdin")
-        .write_all(program.as_bytes())
-        .expect("program written");
-    child.wait_with_output().expect("ncpost ends")
+    let mut args = vec!["--emit", emit];
+    args.extend_from_slice(extra);
+    common::run_stdin(&args, program)
 }
 
 /// The printed program of a run that must succeed.

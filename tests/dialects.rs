@@ -1,6 +1,8 @@
 //! G-code dialects (issue 21, items 4 and 5), checked on the printed text: a PrusaSlicer
 //! MK3S program with Prusa's `G80` mesh levelling compiles, and an NX-posted Fanuc-style
-//! start-up (`G43 Z0.0 H08` before any motion code) is a rapid, as the control reads it.
+//! start-up (`G43 Z0.0 H08` before any motion code) is a rapid, as the control reads it;
+//! canned cycles start in G99 under LinuxCNC and in G98 elsewhere, and the retract mode
+//! carries into subprogram bodies (re-read with the crate's readback).
 
 use ncpost::front::gcode::Options;
 use ncpost::ir::Dialect;
@@ -151,4 +153,71 @@ fn fanuc_k_repeats_a_cycle() {
             .any(|d| d.code == "expand-cycles::cycle" && d.message.contains("`K3`")),
         "{diags:?}"
     );
+}
+
+/// The printed program read back as RepRapFirmware (CNC mode) reads it (the crate's
+/// readback): for each feed stroke down to a hole's bottom, the hole's X Y, its depth and
+/// the Z the tool retracts to next.
+fn drilled(printed: &str) -> Vec<[f64; 4]> {
+    use ncpost::ir::Axis;
+    use ncpost::readback::{Event, Reader};
+    let mut r = Reader::new(
+        ncpost::motion::Model::default(),
+        Some(ncpost::machine::Flavour::RrfCnc),
+        None,
+    );
+    let moves: Vec<_> = printed
+        .lines()
+        .filter_map(|l| match r.line(l) {
+            Some(Event::Move(m)) => Some((m.rapid, m.to)),
+            _ => None,
+        })
+        .collect();
+    let z = |j: &ncpost::ir::Joints| j.get(Axis::Z).unwrap_or(f64::NAN);
+    moves
+        .windows(2)
+        .filter(|w| !w[0].0 && w[1].0 && z(&w[1].1) > z(&w[0].1))
+        .map(|w| {
+            let j = &w[0].1;
+            let xy = |a| j.get(a).unwrap_or(f64::NAN);
+            [xy(Axis::X), xy(Axis::Y), z(j), z(&w[1].1)]
+        })
+        .collect()
+}
+
+/// LinuxCNC starts in G99 (interp_setup.cc: `retract_mode(RETRACT_MODE::R_PLANE)`), Fanuc
+/// in G98: a cycle without G98/G99 retracts to R under the `linuxcnc` dialect (and `auto`
+/// on a file whose header names LinuxCNC), to the initial level otherwise.
+#[test]
+fn linuxcnc_cycles_start_in_g99() {
+    let body = "G21 G90 G0 X0 Y0 Z10\nG81 X1 Y2 Z-3 R2 F100\nX4\nG80\nG0 Z10\nM30\n";
+    let header = format!("(post processor: LinuxCNC mill)\n{body}");
+    let holes = |retract: f64| vec![[1.0, 2.0, -3.0, retract], [4.0, 2.0, -3.0, retract]];
+    for (program, dialect, retract) in [
+        (body, Some(Dialect::Linuxcnc), 2.0),
+        (header.as_str(), None, 2.0),
+        (body, Some(Dialect::Fanuc), 10.0),
+        (body, None, 10.0),
+    ] {
+        let out = compile_str(program, &preset("duet-cnc", dialect)).expect("drilled");
+        assert_eq!(drilled(&out), holes(retract), "{dialect:?}\n{out}");
+    }
+}
+
+/// G98/G99 stays in force across a call, as on the controller: a subprogram's cycle
+/// without its own retract code retracts as the caller said (here G98, to the initial
+/// level Z10, though LinuxCNC would start in G99).
+#[test]
+fn retract_mode_carries_into_subprograms() {
+    let program =
+        "G21 G90 G0 X0 Y0 Z10\nG98\nM98 P1\nG0 X9\nM30\nO1\nG81 X1 Y2 Z-3 R2 F100\nG80\nM99\n";
+    let out = compile_str(program, &preset("duet-cnc", Some(Dialect::Linuxcnc))).expect("drilled");
+    assert_eq!(drilled(&out), [[1.0, 2.0, -3.0, 10.0]], "{out}");
+    let g99 = program.replace("G98", "G99");
+    let out = compile_str(&g99, &preset("duet-cnc", Some(Dialect::Fanuc))).expect("drilled");
+    assert_eq!(drilled(&out), [[1.0, 2.0, -3.0, 2.0]], "{out}");
+    // No code at all, a LinuxCNC header under `auto`: the body starts in LinuxCNC's G99.
+    let header = format!("(LinuxCNC)\n{}", program.replace("G98\n", ""));
+    let out = compile_str(&header, &preset("duet-cnc", None)).expect("drilled");
+    assert_eq!(drilled(&out), [[1.0, 2.0, -3.0, 2.0]], "{out}");
 }

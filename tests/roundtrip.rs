@@ -1279,8 +1279,8 @@ fn render(ops: &[(Op, Style)]) -> String {
                     let _ = writeln!(out, "/G1 {}{}", a.letter(), num(*v));
                     m.pos[a.index()] = None;
                 } else {
+                    // A parameter (#0..#255) moves nothing: the positions stay known.
                     let _ = writeln!(out, "#{n} = {}", num(*v));
-                    m.pos = [None; AXIS_COUNT];
                 }
                 m.line += 1;
             }

@@ -5,6 +5,8 @@
 //! G92 offsets, positions), and a property test: a generated program with calls expands to
 //! the same IR as the same program inlined by hand.
 
+mod common;
+
 use std::path::Path;
 
 use ncpost::back::gcode;
@@ -285,12 +287,6 @@ fn error_snapshots() {
             (2, 1),
         ),
         (
-            "count_zero",
-            "M98 P1 L0\nM30\nO1\nG0 X1\nM99\n",
-            "subprograms::count",
-            (1, 8),
-        ),
-        (
             "count_fraction",
             "M98 P1 L2.5\nM30\nO1\nG0 X1\nM99\n",
             "subprograms::count",
@@ -528,4 +524,188 @@ fn pass_input_changes_the_frontend_options() {
     assert!(s.contains("dwell 500.0000s"), "{s}");
     let bad = dwell("dwell_p_seconds = true").expect_err("unknown field");
     assert!(bad[0].message.contains("dwell_p_seconds"), "{:?}", bad[0]);
+}
+
+/// Runs `ncpost run <args> -` (the binary) on `program`: success, printed program, stderr.
+fn run_cli(program: &str, args: &[&str]) -> (bool, String, String) {
+    let out = common::run_stdin(args, program);
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// `program` for RepRapFirmware (`--preset duet-cnc`), which must compile without
+/// diagnostics of code `quiet`: the printed program and the moves read back from it.
+fn for_rrf(program: &str, quiet: &str) -> (String, String, Vec<(bool, [f64; 3])>) {
+    let (ok, printed, err) = run_cli(program, &["--preset", "duet-cnc"]);
+    assert!(ok, "{err}");
+    assert!(!err.contains(quiet), "{err}");
+    let moves = reread(&printed, ncpost::machine::Flavour::RrfCnc);
+    (printed, err, moves)
+}
+
+/// The printed program read back the way `flavour`'s controller reads it (the crate's
+/// readback): each move's end X Y Z (NaN where not known) and whether it is a rapid.
+fn reread(printed: &str, flavour: ncpost::machine::Flavour) -> Vec<(bool, [f64; 3])> {
+    use ncpost::readback::{Event, Reader};
+    let mut r = Reader::new(ncpost::motion::Model::default(), Some(flavour), None);
+    printed
+        .lines()
+        .filter_map(|l| match r.line(l) {
+            Some(Event::Move(m)) => Some((
+                m.rapid,
+                [Axis::X, Axis::Y, Axis::Z].map(|a| m.to.get(a).unwrap_or(f64::NAN)),
+            )),
+            _ => None,
+        })
+        .collect()
+}
+
+/// 01 for RepRapFirmware (`--preset duet-cnc`) and Grbl: `O1` runs three times, each a
+/// `G91 G0 X1` step and a `G99 G81` hole drilled to Z-1 from the R plane 0.25 and left at
+/// R (G99). The printed program, read back as the controller reads it, goes to X1, X2
+/// and X3 at Y0 and drills each to Z-1, as LinuxCNC's expected output does.
+#[test]
+fn basics_run_for_rrf_and_grbl() {
+    use ncpost::machine::Flavour;
+    let src = fixture("linuxcnc_m98m99_01_basics.ngc");
+    for (args, flavour) in [
+        (&["--preset", "duet-cnc"][..], Flavour::RrfCnc),
+        (&["--emit", "grbl"][..], Flavour::Grbl),
+    ] {
+        let (ok, printed, err) = run_cli(&src, args);
+        assert!(ok, "{args:?}: {err}");
+        assert!(
+            !printed.contains("M98") && !printed.contains("M99"),
+            "{printed}"
+        );
+        let mut want = vec![(true, [0.0, 0.0, 0.25])];
+        for hole in 1..=3 {
+            let x = hole as f64;
+            want.push((true, [x, 0.0, 0.25])); // the G91 step, at the initial level
+            want.push((false, [x, 0.0, -1.0])); // feed to the depth
+            want.push((true, [x, 0.0, 0.25])); // back to R (G99)
+        }
+        assert_eq!(reread(&printed, flavour), want, "{args:?}:\n{printed}");
+    }
+}
+
+/// RepRapFirmware's `M98 P"file"` runs a macro file from the SD card: it is no subprogram
+/// of the program, so it passes through unchanged for RepRapFirmware, and the moves around
+/// it print as programmed.
+#[test]
+fn rrf_macro_calls_pass_through() {
+    let src = "G21 G90\nG0 X0 Y0 Z5\nM98 P\"homeall.g\"\nG0 X10 Y5 Z5\nG1 Z-1 F100\nM98 P\"0:/macros/tool change.g\"\nG0 Z5\nM30\n";
+    let (printed, _, moves) = for_rrf(src, "subprograms::");
+    let calls: Vec<&str> = printed.lines().filter(|l| l.contains("M98")).collect();
+    assert_eq!(
+        calls,
+        ["M98 P\"homeall.g\"", "M98 P\"0:/macros/tool change.g\""]
+    );
+    let ends: Vec<[f64; 3]> = moves.iter().map(|m| m.1).collect();
+    assert_eq!(
+        ends,
+        [
+            [0.0, 0.0, 5.0],
+            [10.0, 5.0, 5.0],
+            [10.0, 5.0, -1.0],
+            [10.0, 5.0, 5.0]
+        ]
+    );
+    // Grbl runs no files: its backend refuses the call, expand-subprograms does not.
+    let (ok, _, err) = run_cli(src, &["--emit", "grbl"]);
+    assert!(!ok);
+    assert!(!err.contains("subprograms::call"), "{err}");
+}
+
+/// Parameter assignments (`#1 = [#1 + 1]`) move nothing: the positions and the modes,
+/// the canned cycle in force included, stay known after them, and the relative moves
+/// after them print resolved. A G92 offset parameter (`#5212`, Y's) makes Y, and only Y,
+/// unknown. Read back as RepRapFirmware reads the printed program.
+#[test]
+fn parameter_lines_move_nothing_and_forget_nothing() {
+    let src = "G21 G90 G0 X1 Y2 Z3\n#1 = [#1 + 1]\nG91 G1 X1 F100\n#<step> = 2 (named)\nG1 Y1\n#5212 = 4\nG1 X1 Z-1\nG1 Y1\nG90 G98 G81 X5 Y5 Z-1 R1\n#2 = 1\nX6\nG80\nM30\n";
+    let (printed, err, moves) = for_rrf(src, "subprograms::");
+    // Only the relative Y move after `#5212` is unknown (line 8), nothing else.
+    assert_eq!(err.matches("gcode::relative-unknown").count(), 1, "{err}");
+    assert!(err.contains(":8:"), "{err}");
+    let mut want = vec![
+        (true, [1.0, 2.0, 3.0]),
+        (false, [2.0, 2.0, 3.0]),
+        (false, [2.0, 3.0, 3.0]),
+        (false, [3.0, 3.0, 2.0]),
+        (false, [3.0, 4.0, 2.0]), // `G1 Y1` as written, read relatively by the controller
+    ];
+    // G98: each hole from the initial level Z2 down to R1, fed to Z-1, back to Z2; the
+    // second hole (X6) is the cycle still in force after `#2 = 1`.
+    for x in [5.0, 6.0] {
+        want.extend([
+            (true, [x, 5.0, 2.0]),
+            (true, [x, 5.0, 1.0]),
+            (false, [x, 5.0, -1.0]),
+            (true, [x, 5.0, 2.0]),
+        ]);
+    }
+    assert_eq!(moves, want, "\n{printed}");
+}
+
+/// `M98 P1 L0` runs O1 no time: LinuxCNC skips the call, and so does the expansion, with
+/// a note; the moves around it print where they were programmed.
+#[test]
+fn l0_skips_the_call() {
+    let src = "G21 G90 G0 X0 Y0 Z5\nM98 P1 L0\nG0 X2\nM98 P1 L2\nG0 Y3\nM30\nO1\nG1 Z-1 F100\nG0 Z5\nM99\n";
+    let (printed, err, moves) = for_rrf(src, "subprograms::count");
+    assert!(err.contains("O1 is called to run no time (L0)"), "{err}");
+    let want = [
+        (true, [0.0, 0.0, 5.0]),
+        (true, [2.0, 0.0, 5.0]),
+        (false, [2.0, 0.0, -1.0]),
+        (true, [2.0, 0.0, 5.0]),
+        (false, [2.0, 0.0, -1.0]),
+        (true, [2.0, 0.0, 5.0]),
+        (true, [2.0, 3.0, 5.0]),
+    ];
+    assert_eq!(moves, want, "\n{printed}");
+}
+
+/// A body that returns in G91 breaks only the lines after its call that the frontend read
+/// in G90: with nothing but `M30` (and comments, parameters) after the calls, the program
+/// compiles, and the relative body steps on from call to call as on the controller.
+#[test]
+fn modes_left_by_a_body_matter_only_to_lines_that_follow() {
+    let src = "G21 G90 G0 X0 Y0 Z5\nM98 P1 L2\n(done)\n#1 = 2\nM98 P1\nM30\nO1\nG91 G0 X1\nG1 Z-1 F100\nG0 Z1\nM99\n";
+    let (_, _, moves) = for_rrf(src, "subprograms::modes");
+    let mut want = vec![(true, [0.0, 0.0, 5.0])];
+    for x in 1..=3 {
+        let x = x as f64;
+        want.push((true, [x, 0.0, 5.0]));
+        want.push((false, [x, 0.0, 4.0]));
+        want.push((true, [x, 0.0, 5.0]));
+    }
+    assert_eq!(moves, want);
+    // A move after the call is read in G90 by the frontend but in G91 by the controller.
+    let (ok, _, err) = run_cli(&src.replace("(done)", "G0 X5"), &["--preset", "duet-cnc"]);
+    assert!(!ok && err.contains("subprograms::modes"), "{err}");
+}
+
+/// A subroutine defined between moves is passed over by the frontend, which forgets the
+/// positions there; the expansion leaves the definition out and forgets them too, so it
+/// never completes a move with an axis the program does not know (an `E0` on a mill, as
+/// pcb2gcode_al_linuxcnc_back.ngc got once parameter lines stopped forgetting E).
+#[test]
+fn a_definition_between_moves_adds_no_axis() {
+    // The call with an argument keeps the definition in the output.
+    let src = "G21 G90 G0 X0 Y0 Z5\no100 sub\nG0 X1\no100 endsub\n#1 = 2\nG0 Z2\no100 call\nG0 Y3\no100 call [1]\nM30\n";
+    let (printed, _, moves) = for_rrf(src, "subprograms::modes");
+    assert!(
+        !printed.contains(" E") && !printed.contains("M82"),
+        "{printed}"
+    );
+    // Read back (the controller runs the definition's lines too): the moves the main
+    // program makes end where it put them, the expanded call's X1 and the Y3 after it.
+    let ends: Vec<[f64; 3]> = moves.iter().map(|m| m.1).collect();
+    assert_eq!(ends.last(), Some(&[1.0, 3.0, 2.0]), "{printed}");
+    assert!(printed.lines().any(|l| l == "G0 Z2"), "{printed}");
 }

@@ -102,4 +102,25 @@ pub struct Modal {
     pub offsets: [f64; AXIS_COUNT],
     /// Offsets suspended by G92.2.
     pub suspended: Option<[f64; AXIS_COUNT]>,
+    /// The canned cycles' retract mode: `G98` (true, to the initial level) or `G99` (to
+    /// R). Modal across calls, as on the controller.
+    pub retract_to_initial: bool,
+    /// The dialect the program is read in (under `auto`, the one its header named).
+    pub dialect: Dialect,
+}
+
+impl Modal {
+    /// Reads the program on in `dialect` (set at the start, or where the header names
+    /// it): a Fanuc control starts in G00, so axis words before the first motion code are
+    /// a rapid; LinuxCNC starts in G99, retracting canned cycles to R
+    /// (src/emc/rs274ngc/interp_setup.cc: `retract_mode(RETRACT_MODE::R_PLANE)`; the EMC
+    /// handbook, "G98 - initial level return in canned cycles": "If G98 is not specified,
+    /// then the canned cycle will return to the R value"), Fanuc and the others in G98.
+    pub fn read_in(&mut self, dialect: Dialect) {
+        self.dialect = dialect;
+        self.retract_to_initial = dialect != Dialect::Linuxcnc;
+        if dialect == Dialect::Fanuc && self.motion == MotionMode::None {
+            self.motion = MotionMode::Rapid;
+        }
+    }
 }

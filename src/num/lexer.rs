@@ -229,6 +229,118 @@ pub fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<Spanned<'a>> {
     })
 }
 
+/// The parameter a `#… = value` assignment sets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Assigned<'a> {
+    /// A numbered parameter, the number as written (`#5211 = 0`: `"5211"`).
+    Number(&'a str),
+    /// A named parameter (`#<depth> = 2`).
+    Named,
+    /// A parameter whose number is computed (`#[#1 + 5000] = 0`, `##1 = 0`).
+    Computed,
+}
+
+/// Whether a line does nothing but set parameters (RS274/NGC and Fanuc macro B:
+/// `#1 = [#1 + 1]`, `N10 #1 = 0 #<x> = #2 (note)`); `each` is called with what each
+/// assignment sets, in order (also for the assignments before a part that makes the
+/// answer false). A line with any other word (`#1 = 2 G0 X#1`) or syntax is not one.
+///
+/// ```
+/// use ncpost::num::lexer::{Assigned, parameter_assignments, tokens};
+/// let toks: Vec<_> = tokens("#1 = [#1 + 1] #<_x> = #2 (step)").collect();
+/// let mut set = Vec::new();
+/// assert!(parameter_assignments(&toks, |a| set.push(a)));
+/// assert_eq!(set, [Assigned::Number("1"), Assigned::Named]);
+/// let toks: Vec<_> = tokens("#1 = 2 G0 X#1").collect();
+/// assert!(!parameter_assignments(&toks, |_| {}));
+/// ```
+pub fn parameter_assignments<'a>(toks: &[Spanned<'a>], mut each: impl FnMut(Assigned<'a>)) -> bool {
+    let is = |i: usize, c: &str| matches!(toks.get(i), Some((_, Tok::Other(o), _)) if *o == c);
+    // Comments do not count; a block-delete slash and a line number may lead.
+    let mut i = 0;
+    let skip = |mut i: usize| {
+        while matches!(
+            toks.get(i).map(|t| t.1),
+            Some(Tok::Comment(_) | Tok::OpenComment(_) | Tok::LineComment(_))
+        ) {
+            i += 1;
+        }
+        i
+    };
+    i = skip(i);
+    if matches!(toks.get(i).map(|t| t.1), Some(Tok::Slash(_))) {
+        i = skip(i + 1);
+    }
+    if matches!(toks.get(i).map(|t| t.1), Some(Tok::Word(w)) if w.starts_with(['N', 'n'])) {
+        i = skip(i + 1);
+    }
+    let mut any = false;
+    while i < toks.len() {
+        if !is(i, "#") {
+            return false;
+        }
+        let (target, at) = match toks.get(i + 1).map(|t| t.1) {
+            Some(Tok::Number(n)) if n.bytes().all(|b| b.is_ascii_digit() || b == b'.') => {
+                (Assigned::Number(n), i + 2)
+            }
+            Some(Tok::Other("<")) => match (i + 2..toks.len()).find(|&k| is(k, ">")) {
+                Some(k) => (Assigned::Named, k + 1),
+                None => return false,
+            },
+            _ => match value(toks, i + 1) {
+                Some(k) => (Assigned::Computed, k),
+                None => return false,
+            },
+        };
+        if !is(at, "=") {
+            return false;
+        }
+        each(target);
+        any = true;
+        match value(toks, at + 1) {
+            Some(k) => i = skip(k),
+            None => return false,
+        }
+    }
+    any
+}
+
+/// The end of the RS274/NGC real value starting at `toks[i]` (a number, a parameter
+/// `#…`, a bracketed expression, a function `SIN[…]`, a sign before one of these).
+fn value(toks: &[Spanned<'_>], i: usize) -> Option<usize> {
+    match toks.get(i)?.1 {
+        Tok::Number(_) => Some(i + 1),
+        Tok::Other("#") => match toks.get(i + 1)?.1 {
+            Tok::Other("<") => (i + 2..toks.len())
+                .find(|&k| toks[k].1 == Tok::Other(">"))
+                .map(|k| k + 1),
+            _ => value(toks, i + 1),
+        },
+        Tok::Other("-" | "+") => value(toks, i + 1),
+        Tok::Other("[") => bracketed(toks, i),
+        Tok::Ident(_) if toks.get(i + 1)?.1 == Tok::Other("[") => bracketed(toks, i + 1),
+        _ => None,
+    }
+}
+
+/// The end of the bracketed expression opening at `toks[i]` (`[`).
+fn bracketed(toks: &[Spanned<'_>], i: usize) -> Option<usize> {
+    let mut depth = 0usize;
+    for (k, t) in toks.iter().enumerate().skip(i) {
+        match t.1 {
+            Tok::Other("[") => depth += 1,
+            Tok::Other("]") => {
+                depth -= 1;
+                if depth == 0 {
+                    return Some(k + 1);
+                }
+            }
+            _ => {}
+        }
+    }
+    None
+}
+
 /// Length up to and including the `)` that closes an already opened comment.
 fn closing_paren(rest: &str) -> Option<usize> {
     let mut depth = 1usize;

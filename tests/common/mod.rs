@@ -3,6 +3,9 @@
 #[allow(dead_code)]
 pub mod geometry;
 
+use std::io::Write;
+use std::process::{Command, Stdio};
+
 use ncpost::diag::Diagnostic;
 use ncpost::ir::Block;
 use ncpost::passes::{self, Context, Output};
@@ -46,4 +49,24 @@ pub fn run_pass(
         pass.finish(&mut o);
     }
     (out, diags)
+}
+
+/// Runs the binary, `ncpost run <args> -`, on `program` given on standard input.
+#[allow(dead_code)]
+pub fn run_stdin(args: &[&str], program: &str) -> std::process::Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ncpost"))
+        .arg("run")
+        .args(args)
+        .arg("-")
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("ncpost runs");
+    let mut stdin = child.stdin.take().expect("stdin");
+    stdin
+        .write_all(program.as_bytes())
+        .expect("program written");
+    drop(stdin);
+    child.wait_with_output().expect("ncpost ends")
 }

@@ -1,6 +1,6 @@
 //! Reading call lines: Fanuc `M98 P<n> L<count>` and LinuxCNC `o<n> call`.
 
-use super::defs::word_positions;
+use super::defs::{file_call, word_positions};
 use super::lower::{Lowering, OwordCall};
 use super::{Call, Key, Options, Reach};
 use crate::diag::Diagnostic;
@@ -104,9 +104,13 @@ fn oword(c: OwordCall, line: u32, text: &str, inside_flow: bool) -> Call {
     }
 }
 
-/// A Fanuc `M98` call line `text` (line `line`), if it is one.
+/// A Fanuc `M98` call line `text` (line `line`), if it is one (a RepRapFirmware macro
+/// call `M98 P"file.g"` is not: it runs a file on the controller).
 fn fanuc(line: u32, text: &str, options: &Options, inside_flow: bool) -> Option<Call> {
     let not_expanded = |msg, at, help| not_expanded(line, text, msg, at, help);
+    if file_call(text) {
+        return None;
+    }
     let m98 = word_positions(text, 'M')
         .into_iter()
         .find(|(_, _, n)| n.as_deref().and_then(crate::num::parse_decimal) == Some(98.0))?;
@@ -187,19 +191,21 @@ fn repeat(
         Some((ls, le, Some(lv))) => {
             let v = crate::num::parse_decimal(&lv).unwrap_or(f64::NAN);
             let max = options.max_count;
-            if !(v.fract() == 0.0 && v >= 1.0 && v <= max as f64) {
+            // `L0` runs the subprogram no time: LinuxCNC skips the call (the expansion
+            // is empty, with a note).
+            if !(v.fract() == 0.0 && v >= 0.0 && v <= max as f64) {
                 let why = if v.fract() != 0.0 || !v.is_finite() {
                     "not a whole number"
-                } else if v < 1.0 {
-                    "runs the subprogram no time"
+                } else if v < 0.0 {
+                    "a negative count"
                 } else {
                     "too many repetitions"
                 };
                 return Some(Err(bad(
-                    format!("repeat count `L{lv}` must be a whole number from 1 to {max}"),
+                    format!("repeat count `L{lv}` must be a whole number from 0 to {max}"),
                     (ls, le),
                     why,
-                    "L counts how many times the subprogram runs (L1 or no L: once); remove the call to run it no time",
+                    "L counts how many times the subprogram runs (L1 or no L: once; L0: the call is skipped)",
                 )));
             }
             Ok((number, v as u32, (m98_at.0, le)))

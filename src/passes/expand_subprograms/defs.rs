@@ -32,6 +32,27 @@ pub(super) fn word_positions(text: &str, letter: char) -> Vec<(usize, usize, Opt
     v
 }
 
+/// Whether a line's `P` is a quoted file name, `M98 P"homeall.g"`: a RepRapFirmware macro
+/// call, which runs a file from the controller's SD card. It is no subprogram of this
+/// file, so it passes through unchanged (and does not start the buffering).
+pub(super) fn file_call(text: &str) -> bool {
+    let mut toks = tokens(text).map(|t| t.1).peekable();
+    while let Some(t) = toks.next() {
+        if matches!(t, Tok::Letter(l) if l.eq_ignore_ascii_case("P"))
+            && matches!(toks.peek(), Some(Tok::Str(_)))
+        {
+            return true;
+        }
+    }
+    false
+}
+
+/// Whether a line calls a subprogram of this file or returns from one: `M98` (not a
+/// macro file call, [`file_call`]) or `M99`.
+fn calls_or_returns(text: &str) -> bool {
+    (has_code(text, 'M', 98.0) && !file_call(text)) || has_code(text, 'M', 99.0)
+}
+
 /// The o-word keyword and label of a line (`o100 sub` is ("100", "sub")).
 fn oword_line(text: &str) -> Option<(String, String)> {
     let toks: Vec<_> = tokens(text).collect();
@@ -56,11 +77,10 @@ fn normalise_label(raw: &str) -> String {
 /// Whether a block starts the part of the program this pass has to buffer.
 pub(super) fn subprogram_related(block: &Block) -> bool {
     match &block.kind {
-        BlockKind::Command(c) => has_code(&c.text, 'M', 98.0) || has_code(&c.text, 'M', 99.0),
+        BlockKind::Command(c) => calls_or_returns(&c.text),
         BlockKind::Verbatim(v) => {
             v.reason == crate::ir::VerbatimReason::Subprogram
-                || has_code(&v.text, 'M', 98.0)
-                || has_code(&v.text, 'M', 99.0)
+                || calls_or_returns(&v.text)
                 || oword_line(&v.text).is_some_and(|(_, kw)| {
                     matches!(kw.as_str(), "sub" | "endsub" | "call" | "return")
                 })

@@ -162,6 +162,19 @@ impl<'a> Expander<'a> {
         out: &mut Vec<Block>,
     ) -> Result<Modal, ()> {
         let def = self.callable(key, depth, stack, site)?;
+        if count == 0 {
+            self.report(
+                site.point(Diagnostic::note(
+                    "subprograms::skipped",
+                    format!(
+                        "{} is called to run no time (L0): the call is skipped",
+                        key.name()
+                    ),
+                ))
+                .with_label("skipped, as LinuxCNC does")
+                .with_help("nothing runs and nothing moves here; remove the call if that is meant"),
+            );
+        }
         self.fits(key, count, site)?;
         self.used.insert(key.clone());
         stack.push(key.clone());

@@ -5,8 +5,8 @@ use super::defs::has_code;
 use super::lower::Lowering;
 use crate::diag::Diagnostic;
 use crate::ir::{
-    AXIS_COUNT, Axis, Block, BlockKind, Modal, Motion, MotionKind, MotionMode, OffsetChange,
-    OffsetCode, Target, Tracker,
+    AXIS_COUNT, Axis, Block, BlockKind, Dialect, Modal, Motion, MotionKind, MotionMode,
+    OffsetChange, OffsetCode, Target, Tracker, VerbatimReason,
 };
 use crate::num::lexer::{Tok, tokens};
 
@@ -18,6 +18,9 @@ pub(super) struct MainState {
     front_offsets: [f64; AXIS_COUNT],
     /// A call has been expanded: the frontend's positions may be less than known.
     after_call: bool,
+    /// A line of the program proper has been read (the header, where the frontend
+    /// learns the dialect under `auto`, is over).
+    started: bool,
 }
 
 impl MainState {
@@ -27,6 +30,49 @@ impl MainState {
             state: start,
             front_offsets: [0.0; AXIS_COUNT],
             after_call: false,
+            started: false,
+        }
+    }
+
+    /// Follows what the frontend learns from the header and the retract-mode codes:
+    /// the dialect (`auto`: named in a comment before the program proper) and `G98`/`G99`,
+    /// which the bodies are lowered in.
+    fn follow_reading(&mut self, block: &Block) {
+        if !self.started && self.state.dialect == Dialect::Auto {
+            let named = match &block.kind {
+                BlockKind::Verbatim(v) => Dialect::named_in(&v.text),
+                _ => None,
+            };
+            let named = named.or_else(|| {
+                block
+                    .comments
+                    .iter()
+                    .find_map(|c| Dialect::named_in(&format!("({})", c.text)))
+            });
+            if let Some(d) = named {
+                self.state.read_in(d);
+            }
+        }
+        let text = match &block.kind {
+            BlockKind::Command(c) => c.text.as_str(),
+            BlockKind::Verbatim(v) => v.text.as_str(),
+            BlockKind::Motion(m) => m.extra.as_str(),
+            BlockKind::Comment => return,
+            _ => "",
+        };
+        let delimiter =
+            matches!(&block.kind, BlockKind::Verbatim(v) if v.reason == VerbatimReason::Delimiter);
+        self.started |= !delimiter;
+        for (_, t, _) in tokens(text) {
+            if let Tok::Word(w) = t
+                && w.starts_with(['G', 'g'])
+            {
+                match crate::num::parse_decimal(w[1..].trim_start()) {
+                    Some(98.0) => self.state.retract_to_initial = true,
+                    Some(99.0) => self.state.retract_to_initial = false,
+                    _ => {}
+                }
+            }
         }
     }
 
@@ -56,6 +102,17 @@ impl MainState {
         let moves_only =
             !out.is_empty() && out.iter().all(|b| matches!(b.kind, BlockKind::Motion(_)));
         (diags.is_empty() && moves_only && out.len() == 1).then(|| (out.remove(0), low.state()))
+    }
+
+    /// Follows the blocks of a definition, which are left out of the output, as the
+    /// frontend did: the positions its lines clobber are unknown after them (the
+    /// completion after a call restores only what the call made unknown).
+    pub fn pass_over(&mut self, blocks: &[Block]) {
+        for b in blocks {
+            if let BlockKind::Verbatim(v) = &b.kind {
+                self.state.pos.forget(v.clobbers);
+            }
+        }
     }
 
     /// The state a call's body starts in: what the blocks left, with the modes the frontend
@@ -91,6 +148,7 @@ impl MainState {
         lowering: &dyn Lowering,
         diags: &mut Vec<Diagnostic>,
     ) -> Block {
+        self.follow_reading(&block);
         if self.after_call
             && let Some((lowered, state)) = self.relower(&block, lowering)
         {
@@ -117,9 +175,12 @@ impl MainState {
             }
             BlockKind::Verbatim(v) => {
                 v.follow(&mut self.state.pos);
-                if v.modes.is_some() && v.reason == crate::ir::VerbatimReason::Unevaluated {
+                if v.modes.is_some()
+                    && v.reason == crate::ir::VerbatimReason::Unevaluated
+                    && !only_assignments(&v.text)
+                {
                     // As the frontend: a line it could not evaluate leaves the motion mode
-                    // unknown, unless it names one.
+                    // unknown, unless it names one; parameter assignments keep it.
                     self.state.motion = motion_of(&v.text).unwrap_or(MotionMode::None);
                 }
             }
@@ -204,6 +265,12 @@ impl MainState {
         }
         o.offsets = s.offsets;
     }
+}
+
+/// Whether a line only sets parameters (`#1 = [#1 + 1]`).
+pub(super) fn only_assignments(text: &str) -> bool {
+    let toks: Vec<_> = tokens(text).collect();
+    crate::num::lexer::parameter_assignments(&toks, |_| {})
 }
 
 /// The motion mode a line's G words select, if any.

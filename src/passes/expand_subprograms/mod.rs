@@ -16,12 +16,18 @@
 //! Subprograms may stand anywhere after the main program (usually after `M30`), the
 //! LinuxCNC subroutines anywhere in the file.
 //!
+//! RepRapFirmware's `M98 P"homeall.g"` (a quoted file name) runs a macro file from the
+//! controller's SD card: it is no subprogram of this file and passes through unchanged,
+//! without starting the buffering below. The pipeline runs this pass by default for
+//! Grbl and RepRapFirmware, neither of which has numbered subprograms inside one file.
+//!
 //! # Errors (pointing at the call's line and column)
 //! - `subprograms::missing`: the called program is not defined in the file.
 //! - `subprograms::recursion`: a program calls itself, directly or through others.
 //! - `subprograms::depth`: calls nest deeper than `max_depth` (default 10).
-//! - `subprograms::count`: `L` is not a whole number from 1 to `max_count` (default
-//!   9999, Fanuc's range). `L0` is an error too (LinuxCNC skips the call; remove the line).
+//! - `subprograms::count`: `L` is not a whole number from 0 to `max_count` (default
+//!   9999, Fanuc's range). `L0` skips the call, as LinuxCNC does, with the note
+//!   `subprograms::skipped` (the program must still exist).
 //! - `subprograms::size`: the expansion would produce more than `max_blocks` blocks. The
 //!   blocks a call makes (its body's blocks times its repeat count, nested calls
 //!   counted the same way) are counted before it is expanded, so a nest of large
@@ -29,7 +35,10 @@
 //! - `subprograms::modes`: a subprogram called from the main program leaves units,
 //!   distance mode, extruder mode or feed mode different from those it was called in. The
 //!   frontend read the lines after the call in the old modes, so their meaning would be
-//!   wrong; end the subprogram in the modes it started in. (Calls inside bodies are
+//!   wrong; end the subprogram in the modes it started in. Reported only when a line
+//!   after the call, before the next call, depends on those modes (a move, a G92, a
+//!   line passed through in its modes): `M98 P1 L3` followed by `M30` alone is fine,
+//!   whatever modes O1 leaves. (Calls inside bodies are
 //!   exact: the lines after them are lowered here, in the modes the call left.) A
 //!   different plane is a warning.
 //! - `subprograms::no-m99`: a Fanuc subprogram runs to the end of the file.
@@ -90,7 +99,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{Output, Pass, PassInfo};
 use crate::diag::Diagnostic;
-use crate::ir::{Block, Span};
+use crate::ir::{Block, BlockKind, Span};
 use calls::main_call;
 use defs::{collect_definitions, subprogram_related};
 use expand::{Expander, Site};
@@ -304,11 +313,14 @@ fn replay(
     while i < blocks.len() {
         if let Some(key) = &owner[i] {
             let range = ex.defs[key].blocks.clone();
+            // The frontend passed the definition through, forgetting the positions.
             if range.start == i {
                 def_at.push((expanded.len(), key.clone()));
+                main.pass_over(&blocks[range.clone()]);
                 i = range.end;
             } else {
                 // A duplicate definition's blocks: left out (warned about).
+                main.pass_over(&blocks[i..=i]);
                 i += 1;
             }
             continue;
@@ -326,7 +338,9 @@ fn replay(
                 let mut stack = Vec::new();
                 match ex.call(&key, count, start, 1, &mut stack, &site, &mut expanded) {
                     Ok(end) => {
-                        ex.check_modes(&key, &start, &end, &site);
+                        if read_in_modes(blocks, owner, i, ex) {
+                            ex.check_modes(&key, &start, &end, &site);
+                        }
                         main.after_call(end);
                     }
                     Err(()) => expanded.push(block),
@@ -345,4 +359,27 @@ fn replay(
         }
     }
     (expanded, def_at)
+}
+
+/// Whether a block of the main program from `blocks[from]` up to its next call (or its
+/// end) depends on the modes the frontend read it in: a move, a G92, a line it passed
+/// through with the modes it was written in (parameter assignments aside), a command
+/// with coordinates. Only then does a body that changed modes break the lines after
+/// its call (`M98 P1` followed by `M30` alone does not).
+fn read_in_modes(blocks: &[Block], owner: &[Option<Key>], from: usize, ex: &Expander<'_>) -> bool {
+    for (block, own) in blocks.iter().zip(owner).skip(from) {
+        if own.is_some() || main_call(block, ex.options, ex.lowering).is_some() {
+            return false;
+        }
+        let depends = match &block.kind {
+            BlockKind::Motion(_) | BlockKind::Offset(_) => true,
+            BlockKind::Command(c) => c.modes.is_some(),
+            BlockKind::Verbatim(v) => v.modes.is_some() && !main::only_assignments(&v.text),
+            BlockKind::Dwell { .. } | BlockKind::Comment => false,
+        };
+        if depends {
+            return true;
+        }
+    }
+    false
 }

@@ -39,9 +39,22 @@ impl Default for CycleModal {
             q: None,
             p: None,
             initial: None,
-            // Fanuc's power-on mode; CAM posts write G98 or G99 with their cycles.
+            // Fanuc's power-on mode (the dialect sets LinuxCNC's G99); CAM posts write
+            // G98 or G99 with their cycles.
             to_initial: true,
         }
+    }
+}
+
+impl CycleModal {
+    /// `G98` (true) or `G99`.
+    pub(super) fn retract_to_initial(&self) -> bool {
+        self.to_initial
+    }
+
+    /// Sets the retract mode (the dialect's start, or the caller's across a call).
+    pub(super) fn set_retract_to_initial(&mut self, to_initial: bool) {
+        self.to_initial = to_initial;
     }
 }
 

@@ -7,6 +7,7 @@ use super::{Lowerer, Placement, Unplain};
 use crate::diag::Diagnostic;
 use crate::front::gcode::lexer::{Spanned, Tok, lex_line};
 use crate::ir::{AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Span, VerbatimReason};
+use crate::num::lexer::Assigned;
 
 /// RepRapFirmware meta-command keywords that start a line.
 const META_KEYWORDS: &[&str] = &[
@@ -166,6 +167,16 @@ impl Lowerer {
             return Some(Unplain::Command);
         }
         let (s, e) = expression.unwrap_or_else(|| odd.map(|o| (o.0, o.1)).unwrap_or((0, 0)));
+        let assignment = expression.and_then(|_| self.assignment_clobbers(toks));
+        let help = match assignment {
+            None => "the line is copied as written; positions after it are treated as unknown".to_string(),
+            Some(c) if c.is_empty() => "the line is copied as written; it only sets parameters, which move nothing: positions after it stay known".to_string(),
+            Some(c) => format!(
+                "the line is copied as written; it sets a system parameter that holds an offset, after which {} {} unknown",
+                axis_names(c),
+                if c.iter().count() == 1 { "is" } else { "are" }
+            ),
+        };
         diags.push(
             Diagnostic::warning(
                 "gcode::unevaluated",
@@ -173,9 +184,9 @@ impl Lowerer {
             )
             .at_bytes(line_no, text, s, e)
             .with_label("not evaluated")
-            .with_help("the line is copied as written; positions after it are treated as unknown"),
+            .with_help(help),
         );
-        Some(Unplain::Unevaluated)
+        Some(assignment.map_or(Unplain::Unevaluated, Unplain::Assignment))
     }
 
     /// A RepRapFirmware meta command (`if`, `while`, `var`, `echo`...) passes through,
@@ -331,9 +342,82 @@ impl Lowerer {
                     Placement::TopLevel { keeps_modes },
                 ));
             }
+            Unplain::Assignment(clobbers) => {
+                // It names no mode and no motion: the modes and the canned cycle in force
+                // stay, as on the controller.
+                out.push(self.verbatim(
+                    text,
+                    span,
+                    VerbatimReason::Unevaluated,
+                    clobbers,
+                    Placement::TopLevel { keeps_modes: true },
+                ));
+            }
             Unplain::Error => {}
         }
     }
+
+    /// For a line that only sets parameters (`#1 = [#1 + 1]`), the axes whose position it
+    /// can change; `None` for any other line.
+    ///
+    /// A parameter moves nothing; only the system parameters that hold offsets change
+    /// what the program's coordinates mean, and so where the tool is in them (LinuxCNC,
+    /// "Numbered Parameters" in the G-code overview): the G92 offsets `#5211`–`#5219`
+    /// (one axis each, X Y Z A B C U V W) and their switch `#5210`, the coordinate
+    /// system number `#5220`, the G54–G59.3 offsets `#5221`–`#5390` (20 per system: one
+    /// axis each, then the XY rotation R), the tool offsets `#5401`–`#5409`. The stored
+    /// G28/G30 positions (`#5161`–`#5189`) matter only to a later G28/G30, after which
+    /// the axes are unknown anyway; `#5420`–`#5428` (the current position) are read-only.
+    /// Any other parameter above 5000, and a computed parameter number, may be any of
+    /// these: every axis. Under the `fanuc` dialect every variable from 1000 up is a
+    /// system variable (tool offsets `#2001`…, work offsets `#5201`…, `#7001`…): every
+    /// axis. Named parameters are the program's own (the named system ones are read-only).
+    fn assignment_clobbers(&self, toks: &[Spanned<'_>]) -> Option<AxisSet> {
+        let mut clobbers = AxisSet::EMPTY;
+        let fanuc = self.dialect == crate::ir::Dialect::Fanuc;
+        let only = crate::num::lexer::parameter_assignments(toks, |a| {
+            let n = match a {
+                Assigned::Number(n) => crate::num::parse_decimal(n).unwrap_or(f64::INFINITY),
+                Assigned::Named => return,
+                Assigned::Computed => f64::INFINITY,
+            };
+            clobbers = clobbers.union(system_parameter_axes(n, fanuc));
+        });
+        only.then_some(clobbers)
+    }
+}
+
+/// The axes whose position in program coordinates a parameter `n` can change (see
+/// [`Lowerer::assignment_clobbers`]).
+fn system_parameter_axes(n: f64, fanuc: bool) -> AxisSet {
+    let axis = |k: f64| {
+        let mut set = AxisSet::EMPTY;
+        set.insert(crate::ir::Axis::ALL[k as usize]);
+        set
+    };
+    if n.fract() != 0.0 || (fanuc && n >= 1000.0) {
+        return AxisSet::ALL;
+    }
+    match n as u32 {
+        0..=5000 | 5161..=5169 | 5181..=5189 | 5420..=5428 => AxisSet::EMPTY,
+        5211..=5219 => axis(n - 5211.0),
+        5401..=5409 => axis(n - 5401.0),
+        5221..=5390 => match (n as u32 - 5221) % 20 {
+            k @ 0..=8 => axis(k as f64),
+            // The rotation of the XY plane.
+            9 => axis(0.0).union(axis(1.0)),
+            _ => AxisSet::ALL,
+        },
+        _ => AxisSet::ALL,
+    }
+}
+
+/// `X Y` for a set of axes.
+fn axis_names(set: AxisSet) -> String {
+    set.iter()
+        .map(|a| a.letter().to_string())
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// The o-word keyword of a LinuxCNC control line (`o100 sub`, `o<x> if [..]`).
@@ -482,4 +566,42 @@ fn is_expression_char(c: &str) -> bool {
         c.as_bytes(),
         [b'#' | b'[' | b']' | b'{' | b'}' | b'=' | b'<' | b'>' | b'@' | b'^']
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::system_parameter_axes;
+    use crate::ir::{Axis, AxisSet};
+
+    fn axes(list: &[Axis]) -> AxisSet {
+        let mut s = AxisSet::EMPTY;
+        for &a in list {
+            s.insert(a);
+        }
+        s
+    }
+
+    /// LinuxCNC's numbered parameters: what each offset parameter can change.
+    #[test]
+    fn system_parameters_forget_the_axes_of_their_offsets() {
+        assert_eq!(system_parameter_axes(1.0, false), AxisSet::EMPTY);
+        assert_eq!(system_parameter_axes(5000.0, false), AxisSet::EMPTY);
+        assert_eq!(system_parameter_axes(5161.0, false), AxisSet::EMPTY); // G28 X
+        assert_eq!(system_parameter_axes(5211.0, false), axes(&[Axis::X])); // G92 X
+        assert_eq!(system_parameter_axes(5219.0, false), axes(&[Axis::W])); // G92 W
+        assert_eq!(system_parameter_axes(5210.0, false), AxisSet::ALL); // G92 on/off
+        assert_eq!(system_parameter_axes(5223.0, false), axes(&[Axis::Z])); // G54 Z
+        assert_eq!(system_parameter_axes(5242.0, false), axes(&[Axis::Y])); // G55 Y
+        assert_eq!(
+            system_parameter_axes(5230.0, false), // G54 R
+            axes(&[Axis::X, Axis::Y])
+        );
+        assert_eq!(system_parameter_axes(5403.0, false), axes(&[Axis::Z])); // tool Z
+        assert_eq!(system_parameter_axes(5422.0, false), AxisSet::EMPTY); // read-only
+        assert_eq!(system_parameter_axes(5600.0, false), AxisSet::ALL);
+        // Fanuc macro B: #2001 is a tool offset.
+        assert_eq!(system_parameter_axes(2001.0, false), AxisSet::EMPTY);
+        assert_eq!(system_parameter_axes(2001.0, true), AxisSet::ALL);
+        assert_eq!(system_parameter_axes(1.5, false), AxisSet::ALL);
+    }
 }

@@ -114,13 +114,11 @@ impl Lowerer {
         l
     }
 
-    /// Reads the program in `dialect`: a Fanuc control starts in G00, so axis words
-    /// before the first motion code are a rapid.
+    /// Reads the program in `dialect` ([`LowerState::read_in`]).
     fn set_dialect(&mut self, dialect: Dialect) {
-        self.dialect = dialect;
-        if dialect == Dialect::Fanuc && self.motion == MotionMode::None {
-            self.motion = MotionMode::Rapid;
-        }
+        let mut state = self.state();
+        state.read_in(dialect);
+        self.set_state(state);
     }
 
     /// A lowerer for the lines of a subprogram body, starting in `state`; its calls
@@ -146,6 +144,8 @@ impl Lowerer {
             pos: self.pos,
             offsets: self.offsets,
             suspended: self.suspended,
+            retract_to_initial: self.cycle.retract_to_initial(),
+            dialect: self.dialect,
         }
     }
 
@@ -162,6 +162,8 @@ impl Lowerer {
         self.pos = s.pos;
         self.offsets = s.offsets;
         self.suspended = s.suspended;
+        self.cycle.set_retract_to_initial(s.retract_to_initial);
+        self.dialect = s.dialect;
     }
 
     /// Whether any non-blank line was read.
@@ -390,6 +392,9 @@ enum Unplain {
     Command,
     /// Parameters, expressions or dialect statements.
     Unevaluated,
+    /// Parameter assignments alone (`#1 = [#1 + 1]`): they move nothing; the axes whose
+    /// position a system parameter set there can change.
+    Assignment(crate::ir::AxisSet),
     /// An error was reported.
     Error,
 }
