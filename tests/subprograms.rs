@@ -709,3 +709,30 @@ fn a_definition_between_moves_adds_no_axis() {
     assert_eq!(ends.last(), Some(&[1.0, 3.0, 2.0]), "{printed}");
     assert!(printed.lines().any(|l| l == "G0 Z2"), "{printed}");
 }
+
+/// A subprogram called only from inside another one that passes through (a loop with a
+/// parameter count cannot be expanded) stays in the printed program with it: pcb2gcode's
+/// autolevelling probe (`o3` repeats `o2 call` `#104` times) once lost `o2`, and the
+/// printed program called a subprogram it no longer had.
+#[test]
+fn subprograms_reached_from_kept_bodies_stay() {
+    let program = "G21 G90\n\
+        o2 sub\n  G0 Z0.080\n  G38.2 Z-0.1 F60\no2 endsub\n\
+        o3 sub\n  o4 repeat [#104]\n    o2 call\n  o4 endrepeat\no3 endsub\n\
+        o9 sub\n  G0 X9\no9 endsub\n\
+        #104 = 2\n\
+        o5 repeat [6]\n  o3 call\no5 endrepeat\n\
+        M2\n";
+    let o = common::run_stdin(&["--emit", "rrf", "-o", "-"], program);
+    let printed = String::from_utf8_lossy(&o.stdout);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    for needle in ["o2 sub", "o2 endsub", "o2 call", "o3 sub", "o3 call"] {
+        assert!(
+            printed.contains(needle),
+            "{needle} missing:\n{printed}\n{stderr}"
+        );
+    }
+    // A subprogram nothing reaches is still left out, with its warning.
+    assert!(!printed.contains("o9 sub"), "{printed}");
+    assert!(stderr.contains("subprograms::unused"), "{stderr}");
+}

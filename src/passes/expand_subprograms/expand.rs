@@ -3,7 +3,7 @@
 
 use std::collections::{HashMap, HashSet};
 
-use super::calls::body_call;
+use super::calls::{body_call, main_call};
 use super::lower::{BodyLowerer, Lowering};
 use super::size::Sizes;
 use super::{Call, Def, Key, Options, Reach};
@@ -103,6 +103,40 @@ impl<'a> Expander<'a> {
         }
     }
 
+    /// Whether definition `key` stays where it was: a call that passed through may reach it.
+    fn keeps(&self, key: &Key) -> bool {
+        self.reached.contains(&Reach::One(key.clone()))
+            || match key {
+                Key::Fanuc(_) => self.reached.contains(&Reach::AllFanuc),
+                Key::Oword(_) => self.reached.contains(&Reach::AllOword),
+            }
+    }
+
+    /// Adds what the calls inside kept definitions reach (a kept `o3` whose body calls
+    /// `o2`), until nothing more is added: the printed program must not call a subprogram
+    /// it left out.
+    fn close_reach(&mut self, blocks: &[Block], def_at: &[(usize, Key)]) {
+        loop {
+            let mut added = false;
+            for (_, key) in def_at {
+                if !self.keeps(key) {
+                    continue;
+                }
+                for b in &blocks[self.defs[key].blocks.clone()] {
+                    let reach = match main_call(b, self.options, self.lowering) {
+                        Some((Call::Expand { key, .. }, _)) => Reach::One(key),
+                        Some((Call::Opaque { reach, .. }, _)) => reach,
+                        _ => continue,
+                    };
+                    added |= self.reached.insert(reach);
+                }
+            }
+            if !added {
+                return;
+            }
+        }
+    }
+
     /// Puts out the expanded main program, with the definitions a call that passed
     /// through may reach where they stood, and the diagnostics.
     pub(super) fn put_out(
@@ -113,18 +147,17 @@ impl<'a> Expander<'a> {
         out: &mut Output<'_>,
     ) {
         let defs = self.defs;
-        // Definitions a call that passed through may reach stay where they were.
-        let keep = |key: &Key| {
-            self.reached.contains(&Reach::One(key.clone()))
-                || match key {
-                    Key::Fanuc(_) => self.reached.contains(&Reach::AllFanuc),
-                    Key::Oword(_) => self.reached.contains(&Reach::AllOword),
-                }
-        };
+        self.close_reach(blocks, def_at);
+        let kept: HashSet<&Key> = def_at
+            .iter()
+            .map(|(_, key)| key)
+            .filter(|key| self.keeps(key))
+            .collect();
         let used = &self.used;
         let diags = &mut self.diags;
         let mut definition = |key: &Key, out: &mut Output<'_>| {
-            emit_definition(blocks, defs, key, keep(key), used.contains(key), diags, out);
+            let keep = kept.contains(key);
+            emit_definition(blocks, defs, key, keep, used.contains(key), diags, out);
         };
         let mut next = def_at.iter().peekable();
         for (n, b) in expanded.into_iter().enumerate() {
