@@ -5,7 +5,7 @@
 use crate::diag::Diagnostic;
 use crate::ir::{AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Span};
 
-use super::window::{Item, Kind};
+use super::window::{Item, Kind, micros};
 use super::{Output, SETTLE_ROUNDS, SETTLE_TOL, SPLIT_EPS, ValveLookahead, WARN_TOL};
 
 /// A change of a command's time that stands for a jump, not a slope, seconds.
@@ -216,7 +216,7 @@ impl ValveLookahead {
         gap: f64,
         out: &mut Output<'_>,
     ) {
-        let seconds = self.dwell_up(short);
+        let seconds = micros(short);
         let mut dwell = Block::new(ev.span, BlockKind::Dwell { seconds });
         dwell.comments.push(Comment {
             text: "valve: waiting for the open delay".into(),
@@ -280,10 +280,9 @@ impl ValveLookahead {
             .rposition(|it| matches!(it.kind, Kind::Dwell { owner: Some(o), .. } if o == id))
     }
 
-    /// Sets dwell `d` of event `id` to `seconds` (up to a printable dwell: it waits for
-    /// the valve), or removes it.
+    /// Sets dwell `d` of event `id` to `seconds` (whole microseconds), or removes it.
     fn set_dwell(&mut self, d: usize, id: u64, seconds: f64) {
-        let seconds = self.dwell_up(seconds);
+        let seconds = micros(seconds);
         if seconds > 0.0 {
             self.queue.items[d].kind = Kind::Dwell {
                 seconds,
@@ -333,7 +332,7 @@ impl ValveLookahead {
                 &self.queue.items[a + 1].kind,
                 &orig.kind,
             ) {
-                let seconds = self.dwell_nearest(sa + sb);
+                let seconds = micros(sa + sb);
                 orig.kind = Kind::Dwell {
                     seconds,
                     owner: *owner,
@@ -355,13 +354,6 @@ impl ValveLookahead {
         let m = self.find_marker(id)?;
         let error = (tt - self.queue.items[m].start) - ev.delay;
         let stuck = ev.clamped && !ev.open && error < 0.0;
-        // An open that waits with its own dwell is early by less than a printable dwell
-        // step only because the dwell was rounded up to one: nothing shorter prints.
-        let rounded_up =
-            ev.open && (0.0..self.dwell_step()).contains(&error) && self.owned_dwell(id).is_some();
-        if rounded_up {
-            return None;
-        }
         (error.abs() > SETTLE_TOL && !stuck).then_some(error)
     }
 
