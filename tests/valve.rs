@@ -678,9 +678,9 @@ fn late_opens(items: &[Timed], open_delay: f64, close_delay: f64) -> usize {
         .filter(|run| {
             let open = changes
                 .iter()
-                .filter(|c| c.0 <= run.0 + 1e-4)
-                .map(|c| c.1)
-                .last();
+                .rev()
+                .find(|c| c.0 <= run.0 + 1e-4)
+                .map(|c| c.1);
             open == Some(false)
         })
         .count()
