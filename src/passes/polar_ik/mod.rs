@@ -54,7 +54,9 @@
 //! programmed XY(Z) speed under its feed rule (`[polar.controller] feed_rule`): with the
 //! Euclidean rule `F_out = joint distance / (Cartesian length / F_prog)`, joint distance
 //! being `√(Δr² + Δθ_deg² + Δz²)`; under `nist` only X/Y/Z letters count while any of
-//! them moves; `inverse-time` writes G93 `F = 1 / minutes`.
+//! them moves; `inverse-time` writes G93 `F = 1 / minutes`. The distance and the length
+//! are those of the printed joints (see [`PolarIk::printed_with`]): the controller moves
+//! between the printed numbers, so a piece whose θ change rounds away is a pure r move.
 //! Near the centre a line forces the table to turn fast: a line passing the centre at
 //! distance `d` at speed `v` turns at `ω = v / d` at its closest approach, and its angular
 //! acceleration peaks at `(3√3 / 8) v² / d²` (at `vt = d/√3`). So the XY speed is capped at
@@ -62,8 +64,8 @@
 //! both from the `[polar]` table's deg/s and deg/s²). The cap applies only inside the
 //! circle where it is lower than the programmed speed: the move is split where it crosses
 //! that circle, and only the pieces inside it (each at its own distance `d`, the closest
-//! of the piece) get a lower F; radial pieces (θ not changing) are never capped. Rapids
-//! keep their feed (the controller's rapid speed).
+//! of the piece) get a lower F; radial pieces (θ not changing as printed) are never
+//! capped. Rapids keep their feed (the controller's rapid speed).
 //!
 //! # Other axes and blocks
 //! Z, E and every other axis are interpolated along each split move in proportion to its

@@ -65,7 +65,8 @@
 //! or the start of the look-ahead window. If the motion time available before a run start
 //! is shorter than `open_delay_s`, the open command goes as early as it can and a dwell
 //! (`G4`) for the remainder is inserted right before the run's first extruding move, with
-//! a warning (the first, then a count). A close that cannot be
+//! a warning; it is placed to the microsecond and goes out rounded up to the whole
+//! milliseconds a backend prints, so the valve is open when the run starts (the first, then a count). A close that cannot be
 //! early enough (a run shorter than `close_delay_s` right after a line of unknown time)
 //! goes as early as it can, with a warning.
 //!
