@@ -6,7 +6,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, Motion, Span, Target};
 use crate::motion::{self, Segment};
 
-use super::window::{Item, Kind, MoveData, cv_duration, dwell_up};
+use super::window::{Item, Kind, MoveData, cv_duration};
 use super::{HOLD_MARGIN_S, Output, ValveLookahead};
 use crate::passes::extrude_rate::material;
 
@@ -281,23 +281,9 @@ impl ValveLookahead {
                 _ => None,
             };
         }
-        let printing = self.track.decimals.is_some();
-        for mut it in self.queue.items.drain(..forced) {
-            match it.kind {
-                Kind::Marker(id) => {
-                    self.queue.events.remove(&id);
-                }
-                // The wait for a valve, settled to the microsecond, goes out as the
-                // controller will wait: the next whole millisecond up (see `dwell_up`).
-                Kind::Dwell {
-                    seconds,
-                    owner: Some(_),
-                } if printing => {
-                    it.block.kind = BlockKind::Dwell {
-                        seconds: dwell_up(seconds),
-                    };
-                }
-                _ => {}
+        for it in self.queue.items.drain(..forced) {
+            if let Kind::Marker(id) = it.kind {
+                self.queue.events.remove(&id);
             }
             out.push(it.block);
         }
