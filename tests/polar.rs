@@ -573,20 +573,11 @@ fn preset_loads_and_runs_end_to_end() {
     let text = include_str!("../passes/polar-printer.toml");
     assert!(text.matches("# assumption:").count() >= 5);
 
-    let fixture = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/fixtures/polar/square_through_centre.gcode"
+    // The preset verifies by default; `run_verified` asks for it as well.
+    let text = run_verified(
+        "square_through_centre.gcode",
+        &["--preset", "polar-printer"],
     );
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_ncpost"))
-        .args(["run", "--preset", "polar-printer", fixture])
-        .output()
-        .expect("runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = String::from_utf8_lossy(&out.stdout);
     insta::assert_snapshot!("polar_printer_square_rrf", text);
 }
 
