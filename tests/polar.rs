@@ -573,20 +573,11 @@ fn preset_loads_and_runs_end_to_end() {
     let text = include_str!("../passes/polar-printer.toml");
     assert!(text.matches("# assumption:").count() >= 5);
 
-    let fixture = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/tests/fixtures/polar/square_through_centre.gcode"
+    // The preset verifies by default; `run_verified` asks for it as well.
+    let text = run_verified(
+        "square_through_centre.gcode",
+        &["--preset", "polar-printer"],
     );
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_ncpost"))
-        .args(["run", "--preset", "polar-printer", fixture])
-        .output()
-        .expect("runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let text = String::from_utf8_lossy(&out.stdout);
     insta::assert_snapshot!("polar_printer_square_rrf", text);
 }
 
@@ -720,4 +711,165 @@ proptest! {
         let dev = piece_deviation(&a, &b, a.xy(), b.xy());
         prop_assert!(dev >= 0.9 * bound, "deviation {dev} against the bound {bound}");
     }
+}
+
+/// Runs the binary on fixture `name` (in `tests/fixtures/polar/`) with `args` and the
+/// verification on; the run must pass it. Returns the printed program.
+fn run_verified(name: &str, args: &[&str]) -> String {
+    let path = format!("{}/tests/fixtures/polar/{name}", env!("CARGO_MANIFEST_DIR"));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_ncpost"))
+        .args(["run", "--verify"])
+        .args(args)
+        .arg(&path)
+        .output()
+        .expect("runs");
+    assert!(
+        out.status.success(),
+        "{name}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).expect("UTF-8")
+}
+
+/// One printed move as the controller runs it.
+struct Timed {
+    seconds: f64,
+    /// The printed tip's path length (the joint-linear spiral, sampled), mm.
+    length: f64,
+    /// The printed θ changes: the table turns.
+    turns: bool,
+    /// The distance from the centre to the line of the printed move's ends, mm.
+    reach: f64,
+}
+
+/// Every printed feed move of `text` re-read by the crate's readback (the controller's
+/// own modal state and timing) on polar machine `p`.
+fn printed_moves(text: &str, p: &Polar) -> Vec<Timed> {
+    use ncpost::motion::{Model, lerp, polar_point};
+    use ncpost::readback::{Event, Reader};
+    let model = Model::for_machines(Some(p), None, None, None);
+    let mut reader = Reader::new(model, p.controller.flavour, Some(p));
+    let (r, th) = (p.r_axis, p.theta_axis);
+    let mut moves = Vec::new();
+    for line in text.lines() {
+        let Some(Event::Move(m)) = reader.line(line) else {
+            continue;
+        };
+        let known = |j: &Joints| j.known.contains(r) && j.known.contains(th);
+        if m.rapid || !known(&m.from) || !known(&m.to) {
+            continue;
+        }
+        let (a, b) = (polar_point(&m.from, r, th), polar_point(&m.to, r, th));
+        let mut length = 0.0;
+        let mut last = a;
+        for k in 1..=16 {
+            let q = polar_point(&lerp(&m.from, &m.to, f64::from(k) / 16.0), r, th);
+            length += (q - last).xy().norm();
+            last = q;
+        }
+        let d = b - a;
+        let chord = d.xy().norm();
+        moves.push(Timed {
+            seconds: m.seconds,
+            length,
+            turns: m.from.get(th) != m.to.get(th),
+            reach: if chord > 0.0 {
+                (a.x * d.y - a.y * d.x).abs() / chord
+            } else {
+                a.coords.xy().norm()
+            },
+        });
+    }
+    moves
+}
+
+/// Checks every printed move of `text` against the programmed speed `feed` (mm/min):
+/// the controller takes the printed length at that speed, within 1 %, or longer only as
+/// far as the near-centre cap asks where the table turns. Returns the printed seconds.
+fn check_block_times(text: &str, p: &Polar, feed: f64) -> f64 {
+    let v = feed / 60.0;
+    let rate = p
+        .omega_max
+        .to_radians()
+        .min(ncpost::passes::polar_ik::ALPHA_FACTOR * p.alpha_max.to_radians().sqrt());
+    let mut total = 0.0;
+    for m in printed_moves(text, p) {
+        total += m.seconds;
+        if m.length <= 1e-6 {
+            continue;
+        }
+        let slowest = if m.turns { v.min(m.reach * rate) } else { v };
+        let (fast, slow) = (m.length / v, m.length / slowest);
+        assert!(
+            m.seconds >= fast * 0.99 && m.seconds <= slow * 1.01,
+            "a printed move of {:.5} mm takes {:.6} s, programmed {fast:.6}..{slow:.6} s",
+            m.length,
+            m.seconds
+        );
+    }
+    total
+}
+
+/// The programmed XY length of the feed moves of `src` (straight lines only), mm.
+fn programmed_length(src: &str) -> f64 {
+    let input = parse_str(src, &GcodeOptions::default())
+        .expect("parse")
+        .blocks;
+    let mut last: Option<Vector2<f64>> = None;
+    let mut total = 0.0;
+    for b in &input {
+        if let BlockKind::Motion(m) = &b.kind
+            && let Some(j) = m.target.joints()
+            && let (Some(x), Some(y)) = (j.get(Axis::X), j.get(Axis::Y))
+        {
+            let q = Vector2::new(x, y);
+            if let (Some(a), MotionKind::Linear) = (last, m.kind) {
+                total += (q - a).norm();
+            }
+            last = Some(q);
+        }
+    }
+    total
+}
+
+/// pcb2gcode's 5-decimal moves 1.5 mm from the table's centre (corpus p-pcb, 115 % over
+/// the block time before): a piece whose θ change rounds away prints as a pure r move,
+/// so its F comes from the printed r alone and the near-centre cap (a limit on the
+/// table's turning) does not slow it.
+#[test]
+fn near_centre_short_moves_run_at_the_programmed_speed() {
+    let text = run_verified(
+        "near_centre_short_moves.ngc",
+        &["--preset", "polar-printer"],
+    );
+    let p = polar(false);
+    let seconds = check_block_times(&text, &p, 600.0);
+    // Never faster than the programmed feed over the whole program.
+    let src = include_str!("fixtures/polar/near_centre_short_moves.ngc");
+    let programmed = programmed_length(src) / 10.0;
+    assert!(
+        seconds >= programmed * 0.99,
+        "{seconds} s for {programmed} s"
+    );
+    // Rounding leaves some pieces without a θ change: they are in the test.
+    assert!(
+        text.lines()
+            .any(|l| l.starts_with("G1 X") && !l.contains('Y')),
+        "{text}"
+    );
+}
+
+/// svg2gcode's 0.0002 mm closing move (corpus p-sameer, 1.65 % over the block time
+/// before): F comes from the printed r/θ deltas, and the whole program takes the
+/// programmed length at the programmed speed.
+#[test]
+fn tiny_closing_move_runs_at_the_programmed_speed() {
+    let text = run_verified("tiny_closing_move.gcode", &["--preset", "polar-printer"]);
+    let seconds = check_block_times(&text, &polar(false), 300.0);
+    let src = include_str!("fixtures/polar/tiny_closing_move.gcode");
+    let programmed = programmed_length(src) / 5.0;
+    assert!(
+        (seconds - programmed).abs() <= 0.01 * programmed,
+        "{seconds} s for {programmed} s"
+    );
 }

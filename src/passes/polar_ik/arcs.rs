@@ -413,7 +413,7 @@ impl PolarIk {
             let seconds = speed.map_or(0.0, |v| {
                 let (piece_xy, len) = stretch(prev_t, piece.s);
                 let mut t = len / v;
-                if self.options.speed_cap && piece.to.theta != prev_node.theta {
+                if self.options.speed_cap && self.turns(&prev_node, &piece.to) {
                     // The piece's closest approach to the centre: its chord's, less
                     // how far the arc bulges from the chord.
                     let d = segment_distance(&prev_node.xy(), &piece.to.xy())

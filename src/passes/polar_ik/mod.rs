@@ -54,7 +54,9 @@
 //! programmed XY(Z) speed under its feed rule (`[polar.controller] feed_rule`): with the
 //! Euclidean rule `F_out = joint distance / (Cartesian length / F_prog)`, joint distance
 //! being `√(Δr² + Δθ_deg² + Δz²)`; under `nist` only X/Y/Z letters count while any of
-//! them moves; `inverse-time` writes G93 `F = 1 / minutes`.
+//! them moves; `inverse-time` writes G93 `F = 1 / minutes`. The distance and the length
+//! are those of the printed joints (see [`PolarIk::printed_with`]): the controller moves
+//! between the printed numbers, so a piece whose θ change rounds away is a pure r move.
 //! Near the centre a line forces the table to turn fast: a line passing the centre at
 //! distance `d` at speed `v` turns at `ω = v / d` at its closest approach, and its angular
 //! acceleration peaks at `(3√3 / 8) v² / d²` (at `vt = d/√3`). So the XY speed is capped at
@@ -62,8 +64,8 @@
 //! both from the `[polar]` table's deg/s and deg/s²). The cap applies only inside the
 //! circle where it is lower than the programmed speed: the move is split where it crosses
 //! that circle, and only the pieces inside it (each at its own distance `d`, the closest
-//! of the piece) get a lower F; radial pieces (θ not changing) are never capped. Rapids
-//! keep their feed (the controller's rapid speed).
+//! of the piece) get a lower F; radial pieces (θ not changing as printed) are never
+//! capped. Rapids keep their feed (the controller's rapid speed).
 //!
 //! # Other axes and blocks
 //! Z, E and every other axis are interpolated along each split move in proportion to its
@@ -104,7 +106,7 @@ use crate::diag::Diagnostic;
 use crate::ir::{Axis, AxisSet, Block, BlockKind, Feed, FeedMode, Joints, Span, Tracker};
 use crate::machine::FeedRule;
 use crate::machine::polar::{OriginPolicy, Polar};
-use crate::num::print::Decimals;
+use crate::num::print::{Decimals, to_units};
 
 pub use geometry::{MAX_ARC_CHORDS, Piece, PolarPoint, arc_points, error_bound, plan};
 
@@ -214,6 +216,9 @@ pub struct PolarIk {
     cap_rate: f64,
     /// The tolerance the pieces get: what the print rounding of their ends leaves.
     tolerance: f64,
+    /// The backend's decimals, when it prints: the controller moves between the printed
+    /// joints, so F is computed from their deltas.
+    decimals: Option<Decimals>,
 }
 
 impl PolarIk {
@@ -237,6 +242,7 @@ impl PolarIk {
             options,
             track: Tracker::default(),
             node: None,
+            decimals: None,
         })
     }
 
@@ -248,6 +254,7 @@ impl PolarIk {
     /// `√3` times their rounding. The pieces get the tolerance less that; an error when
     /// nothing is left.
     pub fn printed_with(mut self, decimals: Option<Decimals>) -> Result<PolarIk, Diagnostic> {
+        self.decimals = decimals;
         let Some(d) = decimals else {
             return Ok(self);
         };
@@ -340,9 +347,34 @@ impl PolarIk {
         }
     }
 
-    /// The feed that makes the controller take `seconds` from `a` to `b`.
+    /// The joints as the controller reads them: each known axis rounded to the backend's
+    /// decimals with the G92 offsets in force (X and Y have none here: they are dropped).
+    fn printed(&self, j: &Joints) -> Joints {
+        match self.decimals {
+            Some(d) => d.printed_joints(j, self.track.offsets(), None),
+            None => *j,
+        }
+    }
+
+    /// The feed that makes the controller run the piece from `a` to `b` (emitted joints,
+    /// `seconds` at the programmed speed along the exact piece) at the programmed speed.
+    ///
+    /// The controller moves between the printed joints, not the exact ones: a short piece
+    /// whose θ change rounds away is a pure r move (`G1 X1.4931` without its Y), so F is
+    /// the printed joint distance over the time. That time is the programmed speed along
+    /// the printed piece: the nozzle goes where the printed numbers put it, so a piece
+    /// whose printed ends are 15 % closer than the exact ones (a 0.0002 mm slicer move)
+    /// takes 15 % less time, at the programmed speed; on pieces longer than a few hundred
+    /// print units the two lengths agree within the F resolution. A piece whose printed
+    /// joints do not change goes nowhere on the controller and takes no time there: its
+    /// printed length is zero, so no programmed time is lost (it keeps the programmed F).
     fn feed_for(&self, feed: &Feed, a: &Joints, b: &Joints, seconds: f64) -> Feed {
         if !(seconds > 0.0 && seconds.is_finite()) {
+            return *feed;
+        }
+        let (pa, pb) = (self.printed(a), self.printed(b));
+        let seconds = seconds * self.printed_share(a, b, &pa, &pb);
+        if seconds <= 0.0 {
             return *feed;
         }
         if self.polar.controller.feed_rule == FeedRule::InverseTime {
@@ -351,7 +383,7 @@ impl PolarIk {
                 rate: Some(60.0 / seconds),
             };
         }
-        let dist = self.joint_distance(a, b);
+        let dist = self.joint_distance(&pa, &pb);
         if dist <= 0.0 {
             return *feed;
         }
@@ -359,6 +391,38 @@ impl PolarIk {
             mode: FeedMode::PerMinute,
             rate: Some(dist / seconds * 60.0),
         }
+    }
+
+    /// Whether the table turns between polar points `a` and `b` on the controller: their
+    /// printed θ differ. A piece whose θ change rounds away is a pure r move there, which
+    /// the near-centre speed cap (a limit on the table's turning) does not slow.
+    fn turns(&self, a: &PolarPoint, b: &PolarPoint) -> bool {
+        if a.theta == b.theta {
+            return false;
+        }
+        let Some(d) = self.decimals else {
+            return true;
+        };
+        let places = d.axis(self.polar.theta_axis);
+        let offset = self.track.offsets()[self.polar.theta_axis.index()];
+        to_units(a.theta.to_degrees() + offset, places)
+            != to_units(b.theta.to_degrees() + offset, places)
+    }
+
+    /// The nozzle's straight travel between the printed joints `pa`, `pb` over that
+    /// between the exact ones `a`, `b` (1 when the exact ends coincide: a turn on the
+    /// spot, or a move of Z alone through the centre, is timed by its joints).
+    fn printed_share(&self, a: &Joints, b: &Joints, pa: &Joints, pb: &Joints) -> f64 {
+        if self.decimals.is_none() || self.options.kinematics == Kinematics::Controller {
+            return 1.0;
+        }
+        let (r, th) = (self.polar.r_axis, self.polar.theta_axis);
+        let tip = |j: &Joints| crate::motion::polar_point(j, r, th);
+        let exact = (tip(b) - tip(a)).norm();
+        if exact <= 0.0 {
+            return 1.0;
+        }
+        (tip(pb) - tip(pa)).norm() / exact
     }
 
     /// A line (homing, a macro...) makes `clobbers` unknown: the position forgets them;

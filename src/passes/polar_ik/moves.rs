@@ -404,7 +404,7 @@ impl PolarIk {
             return 0.0;
         };
         let mut t = len / v;
-        if self.options.speed_cap && piece.to.theta != prev_node.theta {
+        if self.options.speed_cap && self.turns(prev_node, &piece.to) {
             let a = line.p0 + (line.p1 - line.p0) * prev_s;
             let b = line.p0 + (line.p1 - line.p0) * piece.s;
             let d = segment_distance(&a, &b);

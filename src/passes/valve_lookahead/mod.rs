@@ -64,10 +64,13 @@
 //! A command never moves back across the previous valve command, a line of unknown time,
 //! or the start of the look-ahead window. If the motion time available before a run start
 //! is shorter than `open_delay_s`, the open command goes as early as it can and a dwell
-//! (`G4`, whole microseconds) for the remainder is inserted right before the run's first
-//! extruding move, with a warning (the first, then a count). A close that cannot be
-//! early enough (a run shorter than `close_delay_s` right after a line of unknown time)
-//! goes as early as it can, with a warning.
+//! (`G4`) for the remainder is inserted right before the run's first extruding move, with
+//! a warning (the first, then a count). When a backend prints, the dwell is timed as the
+//! controller waits: whole milliseconds, rounded up so the valve is open when the run
+//! starts (the open then comes less than a millisecond early); a command that splits it
+//! splits it on whole milliseconds too. A close that cannot be early enough (a run
+//! shorter than `close_delay_s` right after a line of unknown time) goes as early as it
+//! can, with a warning.
 //!
 //! # Overlapping events (the rule)
 //! Commands are issued in run order: close of run k, then open of run k+1, each after

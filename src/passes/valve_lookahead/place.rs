@@ -216,7 +216,7 @@ impl ValveLookahead {
         gap: f64,
         out: &mut Output<'_>,
     ) {
-        let seconds = micros(short);
+        let seconds = self.dwell_up(short);
         let mut dwell = Block::new(ev.span, BlockKind::Dwell { seconds });
         dwell.comments.push(Comment {
             text: "valve: waiting for the open delay".into(),
@@ -280,9 +280,10 @@ impl ValveLookahead {
             .rposition(|it| matches!(it.kind, Kind::Dwell { owner: Some(o), .. } if o == id))
     }
 
-    /// Sets dwell `d` of event `id` to `seconds` (whole microseconds), or removes it.
+    /// Sets dwell `d` of event `id` to `seconds` (up to a printable dwell: it waits for
+    /// the valve), or removes it.
     fn set_dwell(&mut self, d: usize, id: u64, seconds: f64) {
-        let seconds = micros(seconds);
+        let seconds = self.dwell_up(seconds);
         if seconds > 0.0 {
             self.queue.items[d].kind = Kind::Dwell {
                 seconds,
@@ -332,7 +333,10 @@ impl ValveLookahead {
                 &self.queue.items[a + 1].kind,
                 &orig.kind,
             ) {
-                let seconds = micros(sa + sb);
+                let seconds = match owner {
+                    Some(_) => self.dwell_nearest(sa + sb),
+                    None => micros(sa + sb),
+                };
                 orig.kind = Kind::Dwell {
                     seconds,
                     owner: *owner,
@@ -373,12 +377,15 @@ impl ValveLookahead {
                 .collect();
             let mut changed = false;
             for id in ids {
-                if settled.contains(&id) {
-                    continue;
-                }
                 let Some(error) = self.error_of(id) else {
                     continue;
                 };
+                // A settled open is left alone unless it has become late: the valve
+                // must be open when its run starts.
+                let late_open = error < 0.0 && self.queue.events.get(&id).is_some_and(|e| e.open);
+                if settled.contains(&id) && !late_open {
+                    continue;
+                }
                 changed = true;
                 if self.fix(id, error, out) {
                     settled.push(id);
@@ -399,6 +406,12 @@ impl ValveLookahead {
             && let Kind::Dwell { seconds, .. } = self.queue.items[d].kind
             && seconds - error > 0.0
         {
+            // The dwell moves in whole printed steps: when the error is less than one,
+            // this is as close as the open can come (early, the safe side). Should the
+            // commands around it move it late, a later round takes it up again.
+            if self.dwell_up(seconds - error) == seconds {
+                return true;
+            }
             self.set_dwell(d, id, seconds - error);
             return false;
         }

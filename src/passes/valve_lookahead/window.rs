@@ -85,9 +85,44 @@ pub(super) fn cv_duration(kind: &Kind) -> f64 {
     }
 }
 
-/// Rounds seconds to whole microseconds (what a dwell's `P`/`S` carries).
+/// What a dwell carries in the IR, when nothing prints it: whole microseconds.
+const IR_DWELL_STEP: f64 = 1e-6;
+
+/// Rounds seconds to whole microseconds (a dwell a command splits keeps them).
 pub(super) fn micros(seconds: f64) -> f64 {
     (seconds * 1e6).round() / 1e6
+}
+
+/// What a printed dwell carries, seconds: every backend prints `G4` in whole
+/// milliseconds (RepRapFirmware, Marlin, Fanuc `P` in ms; Grbl, LinuxCNC `P` in seconds
+/// at 3 decimals), and the controller waits just that long.
+pub(super) const PRINTED_DWELL_STEP: f64 = 1e-3;
+
+impl ValveLookahead {
+    /// The resolution of the dwells this pass inserts or splits: whole milliseconds when
+    /// a backend prints them, whole microseconds in the IR.
+    pub(super) fn dwell_step(&self) -> f64 {
+        if self.track.decimals.is_some() {
+            PRINTED_DWELL_STEP
+        } else {
+            IR_DWELL_STEP
+        }
+    }
+
+    /// `seconds` to the nearest printable dwell.
+    pub(super) fn dwell_nearest(&self, seconds: f64) -> f64 {
+        let step = self.dwell_step();
+        (seconds / step).round() * step
+    }
+
+    /// `seconds` up to the next printable dwell: a wait for the valve must not come out
+    /// shorter than the valve needs (`G4 P83` for 83.4 ms starts the run 0.4 ms before
+    /// the valve is open, and a short first block then lacks a third of its material).
+    /// A hair over a whole step (float noise) stays on it.
+    pub(super) fn dwell_up(&self, seconds: f64) -> f64 {
+        let step = self.dwell_step();
+        (seconds / step - 1e-6).ceil() * step
+    }
 }
 
 impl ValveLookahead {
@@ -213,8 +248,16 @@ impl ValveLookahead {
             Kind::Move(m) => self.split_move(it, m, dt)?,
             Kind::Dwell { seconds, owner } => {
                 let owner = *owner;
-                let a = micros(dt);
-                let b = micros(seconds - a);
+                // A valve's wait is on the printed dwells' grid, and so are its parts (each
+                // is printed on its own).
+                let a = match owner {
+                    Some(_) => self.dwell_nearest(dt),
+                    None => micros(dt),
+                };
+                let b = match owner {
+                    Some(_) => self.dwell_nearest(seconds - a),
+                    None => micros(seconds - a),
+                };
                 if a <= 0.0 || b <= 0.0 {
                     return None;
                 }
