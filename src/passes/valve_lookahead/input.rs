@@ -4,7 +4,7 @@
 
 use crate::diag::Diagnostic;
 use crate::ir::{Axis, Block, BlockKind, Joints, Motion, Span, Target};
-use crate::motion::{self, Segment};
+use crate::motion::Segment;
 
 use super::window::{Item, Kind, MoveData, cv_duration};
 use super::{HOLD_MARGIN_S, Output, ValveLookahead};
@@ -18,30 +18,6 @@ impl ValveLookahead {
             Some(d) => d.printed_joints(j, &self.track.offsets, None),
             None => *j,
         }
-    }
-
-    /// How far the tool moves between two joint vectors, mm: through the `[polar]`
-    /// machine's r and θ when there is one, else X, Y, Z (and the other joints).
-    pub(super) fn tool_distance(&self, a: &Joints, b: &Joints) -> f64 {
-        let mut d2 = 0.0;
-        if let Some((r, th)) = self.track.polar_axes
-            && a.known.contains(r)
-            && a.known.contains(th)
-        {
-            d2 += (motion::polar_point(b, r, th) - motion::polar_point(a, r, th)).norm_squared();
-            for ax in Axis::ALL {
-                if ax != r && ax != th && ax != Axis::Z && ax != Axis::E {
-                    d2 += (b.values[ax.index()] - a.values[ax.index()]).powi(2);
-                }
-            }
-            return d2.sqrt();
-        }
-        for ax in Axis::ALL {
-            if ax != Axis::E {
-                d2 += (b.values[ax.index()] - a.values[ax.index()]).powi(2);
-            }
-        }
-        d2.sqrt()
     }
 
     /// The segment of motion `m` between printed joints, at its printed feed.

@@ -5,7 +5,7 @@ use crate::ir::{Block, BlockKind, FeedMode, Joints, MotionKind, Target};
 use crate::motion::arc::ArcPath;
 use crate::motion::{self, Profile, Segment};
 
-use super::{MIN_PART_MM, SNAP_S, ValveLookahead};
+use super::ValveLookahead;
 
 /// A move held in the window: its IR ends and the printed ends the controller reads.
 #[derive(Debug, Clone)]
@@ -306,13 +306,6 @@ impl ValveLookahead {
         };
         let p_mid = self.printed(&mid);
         if p_mid == m.p_from || p_mid == m.p_to {
-            return None;
-        }
-        // No sliver blocks (below a stepper's resolution) where that costs less
-        // than SNAP_S: the command goes to the block's end instead.
-        if (self.tool_distance(&m.p_from, &p_mid) < MIN_PART_MM && dt < SNAP_S)
-            || (self.tool_distance(&p_mid, &m.p_to) < MIN_PART_MM && it.dur - dt < SNAP_S)
-        {
             return None;
         }
         let mut ma = motion.clone();
