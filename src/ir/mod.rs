@@ -23,6 +23,7 @@ pub mod cycle;
 pub mod dump;
 mod modal;
 mod printed;
+pub use printed::as_printed;
 mod track;
 
 pub use modal::{Dialect, Modal, MotionMode};

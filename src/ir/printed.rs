@@ -3,6 +3,21 @@
 use super::{AXIS_COUNT, Axis, AxisSet, Joints};
 use crate::num::print::{Decimals, printed};
 
+/// The joints as the controller reads them when the backend prints at `decimals`
+/// ([`Decimals::printed_joints`]), or `j` itself when nothing is printed (a pass run
+/// without a backend, on the exact IR).
+pub fn as_printed(
+    decimals: Option<Decimals>,
+    j: &Joints,
+    offsets: &[f64; AXIS_COUNT],
+    seen: Option<&(Joints, Joints)>,
+) -> Joints {
+    match decimals {
+        Some(d) => d.printed_joints(j, offsets, seen),
+        None => *j,
+    }
+}
+
 impl Decimals {
     /// Decimals for an axis.
     ///

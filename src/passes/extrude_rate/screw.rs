@@ -28,10 +28,7 @@ impl ExtrudeRate {
     fn printed_reusing(&self, j: &Joints, seen: Option<&(Joints, Joints)>) -> Joints {
         let mut p = *j;
         p.forget(AxisSet::from_iter([Axis::E]));
-        match self.decimals {
-            Some(d) => d.printed_joints(&p, &self.offsets, seen),
-            None => p,
-        }
+        crate::ir::as_printed(self.decimals, &p, &self.offsets, seen)
     }
 
     fn printed_feed(&self, f: f64) -> f64 {

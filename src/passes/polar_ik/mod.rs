@@ -350,10 +350,7 @@ impl PolarIk {
     /// The joints as the controller reads them: each known axis rounded to the backend's
     /// decimals with the G92 offsets in force (X and Y have none here: they are dropped).
     fn printed(&self, j: &Joints) -> Joints {
-        match self.decimals {
-            Some(d) => d.printed_joints(j, self.track.offsets(), None),
-            None => *j,
-        }
+        crate::ir::as_printed(self.decimals, j, self.track.offsets(), None)
     }
 
     /// The feed that makes the controller run the piece from `a` to `b` (emitted joints,

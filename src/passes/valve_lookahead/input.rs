@@ -14,10 +14,7 @@ impl ValveLookahead {
     /// The joints as the controller reads them: each known axis rounded to the backend's
     /// decimals (with the G92 offsets the backend adds).
     pub(super) fn printed(&self, j: &Joints) -> Joints {
-        match self.track.decimals {
-            Some(d) => d.printed_joints(j, &self.track.offsets, None),
-            None => *j,
-        }
+        crate::ir::as_printed(self.track.decimals, j, &self.track.offsets, None)
     }
 
     /// The segment of motion `m` between printed joints, at its printed feed.

@@ -390,7 +390,8 @@ impl Lowerer {
 /// The axes whose position in program coordinates a parameter `n` can change (see
 /// [`Lowerer::assignment_clobbers`]).
 fn system_parameter_axes(n: f64, fanuc: bool) -> AxisSet {
-    let axis = |k: f64| {
+    // X Y Z A B C U V W: the order of LinuxCNC's per-axis parameters and of `Axis::ALL`.
+    let axis = |k: u32| {
         let mut set = AxisSet::EMPTY;
         set.insert(crate::ir::Axis::ALL[k as usize]);
         set
@@ -398,14 +399,15 @@ fn system_parameter_axes(n: f64, fanuc: bool) -> AxisSet {
     if n.fract() != 0.0 || (fanuc && n >= 1000.0) {
         return AxisSet::ALL;
     }
-    match n as u32 {
+    let n = n as u32;
+    match n {
         0..=5000 | 5161..=5169 | 5181..=5189 | 5420..=5428 => AxisSet::EMPTY,
-        5211..=5219 => axis(n - 5211.0),
-        5401..=5409 => axis(n - 5401.0),
-        5221..=5390 => match (n as u32 - 5221) % 20 {
-            k @ 0..=8 => axis(k as f64),
+        5211..=5219 => axis(n - 5211),
+        5401..=5409 => axis(n - 5401),
+        5221..=5390 => match (n - 5221) % 20 {
+            k @ 0..=8 => axis(k),
             // The rotation of the XY plane.
-            9 => axis(0.0).union(axis(1.0)),
+            9 => axis(0).union(axis(1)),
             _ => AxisSet::ALL,
         },
         _ => AxisSet::ALL,
