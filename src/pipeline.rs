@@ -361,7 +361,10 @@ impl Pipeline {
         }
         let out = std::io::BufWriter::with_capacity(1 << 16, output);
         let (tap, mut tee) = verify::start(&self.verify, &self.preset, out);
-        let backend = backend_for(&self.preset, &mut tee);
+        // The backend prints into a spool that the output stage empties into `tee`.
+        let spool = relay::Spool::default();
+        let mut printer = spool.clone();
+        let backend = backend_for(&self.preset, &mut printer);
         let progress = &mut self.progress;
         let mut io_error = None;
         let mut deliver = |reports: Vec<Vec<Diagnostic>>, summary: &mut Summary| {
@@ -380,10 +383,12 @@ impl Pipeline {
             aborted,
             written,
             failed,
-        } = self
-            .stages
-            .relay(backend, tap)
-            .drive(reading, progress, &mut summary, &mut deliver);
+        } = self.stages.relay(backend, spool, &mut tee, tap).drive(
+            reading,
+            progress,
+            &mut summary,
+            &mut deliver,
+        );
         summary.blocks_out = written;
         if let Some(d) = &mut self.stages.dump {
             let _ = d.flush();

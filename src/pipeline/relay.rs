@@ -1,9 +1,14 @@
 //! The threaded run: the stages of a pipeline (the G-code frontend's lowering half, the
-//! passes, the backend) shared by two threads as they go, by the [`Schedule`].
+//! passes, the backend, the output) shared by two threads as they go, by the [`Schedule`].
+//!
+//! The backend prints each batch into the batch's own text, and the output stage hands
+//! that text to the writer, which also feeds `--verify`'s readback. As one stage, printing
+//! and reading back were the slowest stage by far (the E-moc pipeline: 1.35 s of 3.3 s of
+//! CPU in the readback alone), and the other thread waited for it.
 
 use std::io::Write;
-use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
 
 use super::schedule::{Batch, Schedule, Task};
 use super::{Stages, Summary, dump_blocks, finish_pass, run_pass, verify};
@@ -19,6 +24,8 @@ impl Stages {
     pub(super) fn relay<'a>(
         &'a mut self,
         backend: Box<dyn Backend + Send + 'a>,
+        spool: Spool,
+        output: &'a mut (dyn Write + Send),
         mut tap: Option<verify::TapPoint>,
     ) -> Relay<'a> {
         let dump_at = self.dump_at;
@@ -43,21 +50,24 @@ impl Stages {
             .collect();
         let writer = Mutex::new(WriterStage {
             backend,
+            spool,
             dump: dump_before(count),
             written: 0,
             tap,
         });
         Relay {
             max_repeats: self.max_repeats,
-            schedule: Schedule::new(count + 1),
+            schedule: Schedule::new(count + 2),
             lowering: None,
             blocks_in: AtomicU64::new(0),
             spare_lexed: Mutex::new(Vec::new()),
             passes,
             writer,
+            output: Mutex::new(output),
             failed: AtomicBool::new(false),
             reports: Mutex::new(Vec::new()),
             spare: Mutex::new(Vec::new()),
+            spare_text: Mutex::new(Vec::new()),
         }
     }
 }
@@ -69,6 +79,10 @@ impl Stages {
 /// 11.8 and 12.5 MiB with the same CPU time within the noise (identity on 100 MB 0.91,
 /// polar on 10 MB 1.03 of the CPU seconds at 1024; whole-process medians of 5, 2 cores).
 const BATCH: usize = 256;
+
+/// A batch a pass made longer than this is cut into pieces of [`BATCH`] blocks (see
+/// `Relay::cut`).
+const CUT_OVER: usize = 4 * BATCH;
 
 /// Emptied batch buffers kept for reuse (a buffer grows to what the passes make of a
 /// batch once, not on every batch).
@@ -83,9 +97,36 @@ struct PassStage<'a> {
     tap: Option<verify::TapPoint>,
 }
 
-/// The backend as the last stage of a [`Relay`].
+/// The printed text of the batch the backend is writing: the backend's writer, emptied
+/// into the batch after each batch.
+#[derive(Clone, Default)]
+pub(super) struct Spool(Arc<Mutex<Vec<u8>>>);
+
+impl Spool {
+    /// Swaps the text printed so far with `text` (an emptied buffer, kept for reuse).
+    fn take_into(&self, text: &mut Vec<u8>) {
+        let mut printed = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        std::mem::swap(&mut *printed, text);
+    }
+}
+
+impl Write for Spool {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let mut printed = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        printed.extend_from_slice(buf);
+        Ok(buf.len())
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// The backend as the stage before the output of a [`Relay`].
 struct WriterStage<'a> {
     backend: Box<dyn Backend + Send + 'a>,
+    /// What the backend writes to.
+    spool: Spool,
     dump: Option<&'a mut Box<dyn Write + Send>>,
     /// Blocks handed to the backend.
     written: u64,
@@ -145,11 +186,15 @@ pub(super) struct Relay<'a> {
     spare_lexed: Mutex<Vec<front::gcode::Lexed>>,
     passes: Vec<Mutex<PassStage<'a>>>,
     writer: Mutex<WriterStage<'a>>,
+    /// The last stage: where the printed text goes (and `--verify` reads it).
+    output: Mutex<&'a mut (dyn Write + Send)>,
     /// The output cannot be written: reading stops, passes skip their work.
     failed: AtomicBool,
     /// Each written batch's diagnostics, in input order, for the reading thread.
     reports: Mutex<Vec<Vec<Diagnostic>>>,
     spare: Mutex<Vec<Vec<Block>>>,
+    /// Emptied text buffers kept for reuse.
+    spare_text: Mutex<Vec<Vec<u8>>>,
 }
 
 impl Relay<'_> {
@@ -168,7 +213,7 @@ impl Relay<'_> {
             Reading::Lines(lines, lowering) => {
                 // The lowering half is a stage of its own, before the passes.
                 self.lowering = Some(Mutex::new(*lowering));
-                self.schedule = Schedule::new(self.passes.len() + 2);
+                self.schedule = Schedule::new(self.passes.len() + 3);
                 Reader::Lines(lines)
             }
         };
@@ -256,10 +301,17 @@ impl Relay<'_> {
                 lexed.is_end()
             }
         };
+        let text = self
+            .spare_text
+            .lock()
+            .ok()
+            .and_then(|mut s| s.pop())
+            .unwrap_or_default();
         Batch {
             seq,
             lexed,
             blocks,
+            text,
             diags,
             end,
         }
@@ -282,8 +334,8 @@ impl Relay<'_> {
         }
     }
 
-    /// Runs stage `k` (a pass, or after the last pass the backend) on `batch` and hands
-    /// the batch on.
+    /// Runs stage `k` (a pass, or after the last pass the backend, then the output) on
+    /// `batch` and hands the batch on.
     fn stage(&self, k: usize, mut batch: Batch, next: &mut Vec<Block>) {
         let pass = match &self.lowering {
             Some(lowering) if k == 0 => {
@@ -299,12 +351,27 @@ impl Relay<'_> {
                 let mut stage = stage.lock().unwrap_or_else(|p| p.into_inner());
                 self.pass_stage(&mut stage, &mut batch, next);
             }
-            Some(None) => {
+            Some(None) if pass == Some(self.passes.len()) => {
                 let mut w = self.writer.lock().unwrap_or_else(|p| p.into_inner());
                 self.write(&mut w, &mut batch);
             }
+            Some(None) => {
+                let mut out = self.output.lock().unwrap_or_else(|p| p.into_inner());
+                self.output(&mut **out, &mut batch);
+            }
         }
-        if let Some(mut done) = self.schedule.stage_done(k, batch) {
+        let more = if pass.is_some_and(|p| p < self.passes.len()) {
+            self.cut(&mut batch)
+        } else {
+            Vec::new()
+        };
+        if let Some(mut done) = self.schedule.stage_done(k, batch, more) {
+            done.text.clear();
+            if let Ok(mut spare) = self.spare_text.lock()
+                && spare.len() < SPARE_BATCHES
+            {
+                spare.push(std::mem::take(&mut done.text));
+            }
             done.blocks.clear();
             // A pass that cuts moves into many pieces (polar-ik, densify) grows a batch
             // far beyond what the frontend reads; a kept buffer goes back to that size so
@@ -316,6 +383,40 @@ impl Relay<'_> {
                 spare.push(done.blocks);
             }
         }
+    }
+
+    /// Cuts a batch that a pass made much longer than [`BATCH`] (the IK look-ahead hands
+    /// on up to 4096 poses at once, polar-ik makes several pieces of each move) into
+    /// pieces of `BATCH` blocks, returned after the shortened `batch`: the next stages
+    /// then share the pieces between the threads. As one batch, the E-moc pipeline's later
+    /// stages (densify, feed, the backend, the readback) ran on one thread at a time
+    /// while the other waited for the look-ahead.
+    fn cut(&self, batch: &mut Batch) -> Vec<Batch> {
+        if batch.blocks.len() <= CUT_OVER {
+            return Vec::new();
+        }
+        let mut pieces: Vec<Batch> = Vec::new();
+        for (i, block) in batch.blocks.drain(BATCH..).enumerate() {
+            if i % BATCH == 0 {
+                pieces.push(Batch {
+                    seq: batch.seq,
+                    lexed: front::gcode::Lexed::new(),
+                    blocks: self.spare_batch(),
+                    text: Vec::new(),
+                    diags: Vec::new(),
+                    end: false,
+                });
+            }
+            if let Some(piece) = pieces.last_mut() {
+                piece.blocks.push(block);
+            }
+        }
+        // The input's end, and the diagnostics a later stage adds at the end, go with the
+        // last piece.
+        if let Some(last) = pieces.last_mut() {
+            last.end = std::mem::take(&mut batch.end);
+        }
+        pieces
     }
 
     fn pass_stage(&self, stage: &mut PassStage<'_>, batch: &mut Batch, next: &mut Vec<Block>) {
@@ -371,7 +472,19 @@ impl Relay<'_> {
                 batch.diags.push(d);
             }
         }
-        // Still the backend's turn: the reports stay in input order.
+        w.spool.take_into(&mut batch.text);
+    }
+
+    /// The output stage: the batch's text goes to `out`, and its diagnostics to the
+    /// reports (still in input order: one batch at a time).
+    fn output(&self, out: &mut (dyn Write + Send), batch: &mut Batch) {
+        if !self.failed.load(Ordering::Acquire)
+            && let Err(e) = out.write_all(&batch.text)
+        {
+            batch.diags.push(crate::back::io_error(e));
+            self.failed.store(true, Ordering::Release);
+            self.schedule.stop_reading();
+        }
         if !batch.diags.is_empty()
             && let Ok(mut r) = self.reports.lock()
         {
