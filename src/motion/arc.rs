@@ -24,6 +24,8 @@
 //!   of its chords. Every vertex is computed on the arc (`c + r (cos φ, sin φ)`); the
 //!   last one is the block's target exactly.
 
+use nalgebra::Point3;
+
 use crate::ir::{Arc, Axis, Joints, Plane};
 
 /// Largest number of chords one arc is cut into (an arc of 1 km radius at a 1 nm
@@ -239,14 +241,94 @@ impl ArcPath {
         self.points(n).collect()
     }
 
-    /// Length of the (helical) path, mm: exact for a circle, the mean radius for a spiral.
-    pub fn length(&self) -> f64 {
-        let r = 0.5 * (self.r0 + self.r1);
-        let dn = match (self.from.get(self.n), self.to.get(self.n)) {
+    /// Travel along the normal axis from the start to the end, mm (0 when not known).
+    pub fn normal_travel(&self) -> f64 {
+        match (self.from.get(self.n), self.to.get(self.n)) {
             (Some(a), Some(b)) => b - a,
             _ => 0.0,
+        }
+    }
+
+    /// Length of the stretch from parameter `t0` to `t1`, mm, in the plane and as a
+    /// whole: the radius at its middle along the angle, with the radius change and the
+    /// normal travel in quadrature. Exact for a circle and a helix; the one length of an
+    /// arc that the passes time with and the readback checks times against.
+    ///
+    /// ```
+    /// use ncpost::ir::{Arc, Axis, Joints, Plane};
+    /// use ncpost::motion::arc::ArcPath;
+    /// use nalgebra::Vector3;
+    /// let (mut a, mut b) = (Joints::default(), Joints::default());
+    /// a.set(Axis::X, 10.0); a.set(Axis::Y, 0.0); a.set(Axis::Z, 0.0);
+    /// b.set(Axis::X, -10.0); b.set(Axis::Y, 0.0); b.set(Axis::Z, 0.0);
+    /// let arc = Arc { clockwise: false, plane: Plane::XY, center: Vector3::zeros(), extra_turns: 0 };
+    /// let p = ArcPath::new(&a, &b, &arc).unwrap();
+    /// let (xy, whole) = p.stretch(0.0, 0.5);
+    /// assert!((xy - 5.0 * std::f64::consts::PI).abs() < 1e-12 && xy == whole);
+    /// assert!((p.length() - 10.0 * std::f64::consts::PI).abs() < 1e-12);
+    /// ```
+    pub fn stretch(&self, t0: f64, t1: f64) -> (f64, f64) {
+        let dt = (t1 - t0).abs();
+        let along = self.radius_at(0.5 * (t0 + t1)) * self.sweep.abs() * dt;
+        let in_plane = along.hypot((self.r1 - self.r0) * dt);
+        (in_plane, in_plane.hypot(self.normal_travel() * dt))
+    }
+
+    /// Length of the whole (helical) path, mm ([`ArcPath::stretch`] from 0 to 1).
+    pub fn length(&self) -> f64 {
+        self.stretch(0.0, 1.0).1
+    }
+
+    /// The path parameter of the point of the arc at the angle of `p` (a tool tip,
+    /// X Y Z, mm: an arc's plane axes are linear axes) about the centre; of the turns
+    /// that pass that angle, the one nearest `near`. An angle outside the sweep counts
+    /// at the nearer end.
+    pub fn param(&self, p: &Point3<f64>, near: f64) -> f64 {
+        let total = self.sweep.abs();
+        let (Some(su), Some(sv)) = (self.from.get(self.u), self.from.get(self.v)) else {
+            return 0.0;
         };
-        (r * self.sweep.abs()).hypot(dn)
+        if total == 0.0 {
+            return 0.0;
+        }
+        let [cu, cv] = self.centre;
+        let (au, av) = (su - cu, sv - cv);
+        let (pu, pv) = (p[self.u.index()] - cu, p[self.v.index()] - cv);
+        // The one angle: from the start to p, in the sweep's direction, in [0, 2π).
+        let tau = std::f64::consts::TAU;
+        let turned = (au * pv - av * pu).atan2(au * pu + av * pv);
+        let alpha = (turned * self.sweep.signum()).rem_euclid(tau);
+        if alpha > total {
+            return if alpha - total < tau - alpha {
+                1.0
+            } else {
+                0.0
+            };
+        }
+        let turns = ((total - alpha) / tau).floor();
+        let k = ((near * total - alpha) / tau).round().clamp(0.0, turns);
+        (alpha + k * tau) / total
+    }
+
+    /// Distance of `p` (a tool tip, X Y Z, mm) from the path: from the radius at `p`'s
+    /// angle in the plane (the turn whose radius is nearest `p`'s), with the normal
+    /// coordinate between the ends (an unknown one counts as 0, as the tip's does).
+    pub fn distance(&self, p: &Point3<f64>) -> f64 {
+        let [cu, cv] = self.centre;
+        let rho = (p[self.u.index()] - cu).hypot(p[self.v.index()] - cv);
+        let t = if self.r1 == self.r0 {
+            0.0
+        } else {
+            self.param(p, (rho - self.r0) / (self.r1 - self.r0))
+        };
+        let radial = rho - self.radius_at(t);
+        let (a, b) = (
+            self.from.get(self.n).unwrap_or(0.0),
+            self.to.get(self.n).unwrap_or(0.0),
+        );
+        let pn = p[self.n.index()];
+        let dn = (a.min(b) - pn).max(pn - a.max(b)).max(0.0);
+        radial.hypot(dn)
     }
 }
 

@@ -67,6 +67,7 @@ use std::collections::VecDeque;
 use crate::ir::{AXIS_COUNT, Arc, Axis, FeedMode, Joints, Motion, MotionKind, Target};
 use crate::machine::polar::Polar;
 use crate::machine::{Controller, FeedRule, Machine, PerAxis, RapidRule};
+use arc::ArcPath;
 use nalgebra::Point3;
 
 /// Speed assumed for rapids when nothing else is known, mm/min.
@@ -349,29 +350,14 @@ pub fn rule_distance(rule: FeedRule, delta: &[f64; AXIS_COUNT], arc: Option<f64>
 /// Length of a (helical) arc from `a` to `b`, mm (the chord when the plane's axes are
 /// not known).
 pub fn arc_length(a: &Joints, b: &Joints, arc: &Arc) -> f64 {
-    let (u, v, n) = arc.plane.axes();
-    let (Some(su), Some(sv), Some(eu), Some(ev)) = (a.get(u), a.get(v), b.get(u), b.get(v)) else {
-        let d: f64 = [Axis::X, Axis::Y, Axis::Z]
+    match ArcPath::new(a, b, arc) {
+        Some(path) => path.length(),
+        None => [Axis::X, Axis::Y, Axis::Z]
             .iter()
             .filter_map(|&k| Some((b.get(k)? - a.get(k)?).powi(2)))
-            .sum();
-        return d.sqrt();
-    };
-    let (cu, cv) = (arc.center[u.index()], arc.center[v.index()]);
-    let r = (su - cu).hypot(sv - cv);
-    let a0 = (sv - cv).atan2(su - cu);
-    let a1 = (ev - cv).atan2(eu - cu);
-    let tau = std::f64::consts::TAU;
-    let mut sweep = if arc.clockwise { a0 - a1 } else { a1 - a0 }.rem_euclid(tau);
-    if sweep < 1e-12 {
-        sweep = tau;
+            .sum::<f64>()
+            .sqrt(),
     }
-    sweep += tau * arc.extra_turns as f64;
-    let dn = match (a.get(n), b.get(n)) {
-        (Some(p), Some(q)) => q - p,
-        _ => 0.0,
-    };
-    (r * sweep).hypot(dn)
 }
 
 /// One motion block as the planner sees it: joint deltas, distance under the feed rule

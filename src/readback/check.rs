@@ -7,13 +7,14 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
 
-use super::path::{Kinematics, Pose, Vertex, angle, distance, line_param, off_arc, off_segment};
+use super::path::{Kinematics, Pose, Vertex, angle, line_param, off_arc, off_segment};
 use super::reader::{Event, Move};
 use super::{Figures, Tolerances};
 use crate::ir::{AXIS_COUNT, Axis, Feed, FeedMode, Joints, MotionKind};
 use crate::machine::polar::Polar;
 use crate::motion::arc::ArcPath;
 use crate::motion::{Model, lerp};
+use nalgebra::distance;
 
 /// The programmed vertices on their way from the tap to the checker.
 pub type Queue = Arc<Mutex<VecDeque<Vertex>>>;
@@ -242,7 +243,7 @@ impl Checker {
         if self.queue.len() <= k {
             self.refill();
         }
-        self.queue.get(k).copied()
+        self.queue.get(k).cloned()
     }
 
     fn refill(&mut self) {
@@ -262,8 +263,8 @@ impl Checker {
     /// vertex is reached only by a printed `G53` move).
     fn hits(&self, pose: &Pose, v: &Vertex) -> bool {
         !v.machine
-            && distance(pose.0, v.tip) <= self.tol.hit_tip()
-            && angle(pose.1, v.axis) <= self.tol.hit_axis()
+            && distance(&pose.0, &v.tip) <= self.tol.hit_tip()
+            && angle(&pose.1, &v.axis) <= self.tol.hit_axis()
     }
 
     /// A programmed vertex the printed program never reaches.
@@ -297,13 +298,10 @@ impl Checker {
         let end = self.kin.printed(&m.to);
         self.last = Some((m.to, end));
         // A programmed segment of no length is not printed: step over it.
-        while let (Some(p), Some(t)) = (self.prev, self.target(0)) {
+        while let (Some(p), Some(t)) = (self.prev.as_ref().map(|p| (p.tip, p.axis)), self.target(0))
+        {
             // (A full circle ends where it starts, but it is printed.)
-            if self.hits(&end, &t)
-                || !self.hits(&(p.tip, p.axis), &t)
-                || t.arc.is_some()
-                || t.machine
-            {
+            if self.hits(&end, &t) || !self.hits(&p, &t) || t.arc.is_some() || t.machine {
                 break;
             }
             self.close(line);
@@ -333,12 +331,11 @@ impl Checker {
             self.extrusion_start(line, target.line);
         }
         self.advance(m.seconds);
-        let length = match (target.arc, self.prev) {
+        let length = match (&target.arc, &self.prev) {
             // A programmed arc's time is its own length's, however its pieces cut it.
-            (Some(arc), Some(p)) if !target.rapid => {
-                let n = arc.normal;
+            (Some(arc), Some(_)) if !target.rapid => {
                 let run = std::mem::replace(&mut self.seg_t, t);
-                arc.length(run, t, target.tip[n] - p.tip[n])
+                arc.stretch(run, t).1
             }
             // The programmed time of a 5-axis segment is its straight line at the
             // programmed feed, and the pieces' ends lie on that line: each piece counts
@@ -346,7 +343,7 @@ impl Checker {
             // the tip tolerance (checked in `sample`); its extra length, up to a few per
             // cent on short pieces with the whole tolerance's sag, is no time the program
             // asked for.
-            _ if self.turns_tool && m.arc.is_none() => distance(start.0, end.0),
+            _ if self.turns_tool && m.arc.is_none() => distance(&start.0, &end.0),
             _ => path,
         };
         self.seg[0] += m.seconds;
@@ -370,7 +367,7 @@ impl Checker {
             } else if !(target.partial || target.fresh || self.blind) {
                 self.figures
                     .tip
-                    .note(distance(start.0, target.tip), line, target.line);
+                    .note(distance(&start.0, &target.tip), line, target.line);
             }
             self.close(line);
             self.close(line);
@@ -388,7 +385,7 @@ impl Checker {
         line: u64,
     ) -> (f64, f64) {
         let check = !(target.rapid || target.fresh || m.rapid || self.blind) && self.prev.is_some();
-        let a = self.prev.map_or(start, |p| (p.tip, p.axis));
+        let a = self.prev.as_ref().map_or(start, |p| (p.tip, p.axis));
         let arc = m.arc.and_then(|arc| ArcPath::new(&m.from, &m.to, &arc));
         let n = if arc.is_some() {
             ARC_SAMPLES
@@ -406,21 +403,21 @@ impl Checker {
                 None if k == n => end,
                 None => self.kin.printed(&lerp(&m.from, &m.to, f)),
             };
-            length += distance(last, pose.0);
+            length += distance(&last, &pose.0);
             last = pose.0;
             if check {
-                let tip = off_segment(pose.0, a.0, target.tip, target.arc.as_ref());
+                let tip = off_segment(&pose.0, &a.0, &target.tip, target.arc.as_deref());
                 self.figures.tip.note(tip, line, target.line);
                 if self.turns_tool {
-                    let axis = off_arc(pose.1, a.1, target.axis);
+                    let axis = off_arc(&pose.1, &a.1, &target.axis);
                     self.figures.axis.note(axis, line, target.line);
                 }
             }
         }
-        let t = match target.arc {
+        let t = match &target.arc {
             _ if self.hits(&end, target) => 1.0,
-            Some(arc) => arc.param(end.0, a.0, self.seg_t),
-            None if self.deferred.is_some() => line_param(end.0, a.0, target.tip),
+            Some(arc) => arc.param(&end.0, self.seg_t),
+            None if self.deferred.is_some() => line_param(&end.0, &a.0, &target.tip),
             None => 0.0,
         };
         (length, t)

@@ -24,7 +24,7 @@ mod path;
 mod reader;
 
 pub use check::{Checker, Queue};
-pub use path::{Kinematics, Spiral, Tap, Vertex};
+pub use path::{Kinematics, Tap, Vertex};
 pub use reader::{Event, Move, Reader, dwell_p_unit};
 
 use serde::{Deserialize, Serialize};
@@ -440,8 +440,8 @@ mod tests {
 
     fn vertex(x: f64, feed: f64, line: u32) -> Vertex {
         Vertex {
-            tip: [x, 0.0, 0.0],
-            axis: [0.0, 0.0, 1.0],
+            tip: nalgebra::Point3::new(x, 0.0, 0.0),
+            axis: nalgebra::Vector3::z(),
             feed,
             rapid: feed == 0.0,
             fresh: line == 1,

@@ -2,7 +2,7 @@
 //! programmed motion block (the IR before the machine passes), and the one kinematic chain
 //! that maps printed joints back to the tool tip and axis in the programmed frame.
 
-use std::f64::consts::TAU;
+use nalgebra::{Point3, Vector3};
 
 use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target, Tracker};
 use crate::machine::Machine;
@@ -31,9 +31,7 @@ pub enum Kinematics {
 }
 
 /// A tool tip and unit tool axis in the programmed frame.
-pub type Pose = ([f64; 3], [f64; 3]);
-
-const UP: [f64; 3] = [0.0, 0.0, 1.0];
+pub type Pose = (Point3<f64>, Vector3<f64>);
 
 fn xyz(j: &Joints) -> [f64; 3] {
     let v = |a: Axis| j.get(a).unwrap_or(0.0);
@@ -48,16 +46,19 @@ impl Kinematics {
                 let [a, b] = m.rotary_axes();
                 let angles = [j.get(a).unwrap_or(0.0), j.get(b).unwrap_or(0.0)];
                 let pose = m.forward(&xyz(j), angles);
-                (pose.tip.coords.into(), pose.axis.into_inner().into())
+                (pose.tip, pose.axis.into_inner())
             }
             Kinematics::Polar {
                 r, theta, center, ..
             } => {
                 let p = polar_point(j, *r, *theta);
                 let z = j.get(Axis::Z).unwrap_or(0.0);
-                ([p.x + center[0], p.y + center[1], z], UP)
+                (
+                    Point3::new(p.x + center[0], p.y + center[1], z),
+                    Vector3::z(),
+                )
             }
-            Kinematics::Cartesian => (xyz(j), UP),
+            Kinematics::Cartesian => (xyz(j).into(), Vector3::z()),
         }
     }
 
@@ -66,7 +67,7 @@ impl Kinematics {
     fn programmed(&self, j: &Joints) -> Pose {
         match self {
             Kinematics::Machine(_) => self.printed(j),
-            _ => (xyz(j), UP),
+            _ => (xyz(j).into(), Vector3::z()),
         }
     }
 
@@ -124,12 +125,12 @@ impl Kinematics {
 }
 
 /// One programmed motion block: the end of the programmed segment that leads to it.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct Vertex {
     /// Tool tip, mm.
-    pub tip: [f64; 3],
+    pub tip: Point3<f64>,
     /// Unit tool axis.
-    pub axis: [f64; 3],
+    pub axis: Vector3<f64>,
     /// Programmed feed, mm/min (0: a rapid or no feed).
     pub feed: f64,
     /// A rapid: its path is the controller's, only its end is compared.
@@ -141,7 +142,7 @@ pub struct Vertex {
     pub material: f64,
     /// The arc the segment programs: the deviation is measured from it, and its length
     /// is the programmed time's.
-    pub arc: Option<Spiral>,
+    pub arc: Option<std::sync::Arc<ArcPath>>,
     /// The share of the segment's E increase that restores a retraction (0 to 1): the
     /// slicer pushes back what it retracted before any material flows, so the extrusion
     /// starts that far into the segment.
@@ -200,7 +201,7 @@ impl Tap {
             return None;
         };
         let (tip, axis, e) = match &m.target {
-            Target::Pose(p) => (p.tip.coords.into(), p.axis.into_inner().into(), None),
+            Target::Pose(p) => (p.tip, p.axis.into_inner(), None),
             Target::Joints(j) => {
                 let (tip, axis) = self.kin.programmed(j);
                 (tip, axis, j.get(Axis::E))
@@ -224,7 +225,7 @@ impl Tap {
         let rapid = m.kind == MotionKind::Rapid;
         let arc = match (m.kind, &m.target) {
             (MotionKind::Arc(a), Target::Joints(j)) => {
-                ArcPath::new(&from, j, &a).map(|p| Spiral::new(&p))
+                ArcPath::new(&from, j, &a).map(std::sync::Arc::new)
             }
             _ => None,
         };
@@ -258,177 +259,53 @@ impl Tap {
     }
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn norm(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
-}
-
-/// Distance between two points.
-pub fn distance(a: [f64; 3], b: [f64; 3]) -> f64 {
-    norm(sub(a, b))
-}
-
-/// A programmed arc as the controller and `polar-ik` move it ([`ArcPath`]): in the plane
-/// with normal coordinate `normal`, about `center`, the radius going linearly with the
-/// angle swept from the start's to the end's (a circle when they are equal, a spiral
-/// when the end lies off the start's circle).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Spiral {
-    /// Centre (its coordinate along the normal unused), mm.
-    pub center: [f64; 3],
-    /// Index (0 = X, 1 = Y, 2 = Z) of the plane's normal.
-    pub normal: usize,
-    /// Signed angle swept, rad (negative clockwise), full turns included.
-    pub sweep: f64,
-    /// Radius at the start and at the end, mm.
-    pub radii: [f64; 2],
-}
-
-impl Spiral {
-    /// The spiral of an arc block's path.
-    pub fn new(p: &ArcPath) -> Spiral {
-        let mut center = [0.0; 3];
-        center[p.u.index()] = p.centre[0];
-        center[p.v.index()] = p.centre[1];
-        Spiral {
-            center,
-            normal: p.n.index(),
-            sweep: p.sweep,
-            radii: [p.r0, p.r1],
-        }
-    }
-
-    /// The plane's coordinates `(u, v)`.
-    fn plane(&self) -> (usize, usize) {
-        ((self.normal + 1) % 3, (self.normal + 2) % 3)
-    }
-
-    /// The radius at path parameter `t`.
-    fn radius_at(&self, t: f64) -> f64 {
-        self.radii[0] + (self.radii[1] - self.radii[0]) * t
-    }
-
-    /// The path parameter (0 at the start `a`, 1 at the end) of the point of the spiral
-    /// at `p`'s angle about the centre; of the turns that pass that angle, the one
-    /// nearest `near`. An angle outside the sweep counts at the nearer end.
-    pub fn param(&self, p: [f64; 3], a: [f64; 3], near: f64) -> f64 {
-        let (u, v) = self.plane();
-        let c = self.center;
-        let (au, av) = (a[u] - c[u], a[v] - c[v]);
-        let (pu, pv) = (p[u] - c[u], p[v] - c[v]);
-        let total = self.sweep.abs();
-        if total == 0.0 {
-            return 0.0;
-        }
-        // The one angle: from the start to p, in the sweep's direction, in [0, 2π).
-        let turned = (au * pv - av * pu).atan2(au * pu + av * pv);
-        let alpha = (turned * self.sweep.signum()).rem_euclid(TAU);
-        if alpha > total {
-            return if alpha - total < TAU - alpha {
-                1.0
-            } else {
-                0.0
-            };
-        }
-        let turns = ((total - alpha) / TAU).floor();
-        let k = ((near * total - alpha) / TAU).round().clamp(0.0, turns);
-        (alpha + k * TAU) / total
-    }
-
-    /// Distance of `p` from the spiral that starts at `a` and ends at `b`: from the
-    /// radius at `p`'s angle in the plane (the turn whose radius is nearest `p`'s), with
-    /// the normal coordinate between the ends.
-    fn off(&self, p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> f64 {
-        let (u, v) = self.plane();
-        let c = self.center;
-        let rho = (p[u] - c[u]).hypot(p[v] - c[v]);
-        let [r0, r1] = self.radii;
-        let t = if r1 == r0 {
-            0.0
-        } else {
-            self.param(p, a, (rho - r0) / (r1 - r0))
-        };
-        let radial = rho - self.radius_at(t);
-        let n = self.normal;
-        let (lo, hi) = (a[n].min(b[n]), a[n].max(b[n]));
-        let dn = (lo - p[n]).max(p[n] - hi).max(0.0);
-        radial.hypot(dn)
-    }
-
-    /// Length of the stretch from parameter `t0` to `t1`, `dn` the whole arc's travel
-    /// along the normal, mm: the radius at its middle along the angle, with the radius
-    /// change and the normal travel (as `polar-ik` times its pieces).
-    pub fn length(&self, t0: f64, t1: f64, dn: f64) -> f64 {
-        let dt = (t1 - t0).abs();
-        let along = self.radius_at(0.5 * (t0 + t1)) * self.sweep.abs() * dt;
-        along
-            .hypot((self.radii[1] - self.radii[0]) * dt)
-            .hypot(dn * dt)
-    }
-}
-
-/// Distance of `p` from the programmed segment `a → b` (an arc: from its [`Spiral`]).
-pub fn off_segment(p: [f64; 3], a: [f64; 3], b: [f64; 3], arc: Option<&Spiral>) -> f64 {
-    if let Some(s) = arc {
-        return s.off(p, a, b);
+/// Distance of `p` from the programmed segment `a → b` (an arc: from its path).
+pub fn off_segment(
+    p: &Point3<f64>,
+    a: &Point3<f64>,
+    b: &Point3<f64>,
+    arc: Option<&ArcPath>,
+) -> f64 {
+    if let Some(path) = arc {
+        return path.distance(p);
     }
     let t = line_param(p, a, b);
-    let d = sub(b, a);
-    distance(p, [a[0] + t * d[0], a[1] + t * d[1], a[2] + t * d[2]])
+    nalgebra::distance(p, &(a + (b - a) * t))
 }
 
 /// The parameter (0 at `a`, 1 at `b`) of the point of the line segment `a → b` nearest
 /// `p`.
-pub fn line_param(p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> f64 {
-    let d = sub(b, a);
-    let len2 = dot(d, d);
+pub fn line_param(p: &Point3<f64>, a: &Point3<f64>, b: &Point3<f64>) -> f64 {
+    let d = b - a;
+    let len2 = d.norm_squared();
     if len2 > 0.0 {
-        (dot(sub(p, a), d) / len2).clamp(0.0, 1.0)
+        ((p - a).dot(&d) / len2).clamp(0.0, 1.0)
     } else {
         0.0
     }
 }
 
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
 /// Angle, degrees, between unit vectors.
-pub fn angle(a: [f64; 3], b: [f64; 3]) -> f64 {
-    norm(cross(a, b)).atan2(dot(a, b)).to_degrees()
+pub fn angle(a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    a.cross(b).norm().atan2(a.dot(b)).to_degrees()
 }
 
 /// Angle, degrees, of the unit vector `p` from the great-circle arc `a → b` (the tool
 /// axis the programmed segment sweeps): from the great circle where `p`'s foot on it
 /// lies between the ends, else from the nearer end.
-pub fn off_arc(p: [f64; 3], a: [f64; 3], b: [f64; 3]) -> f64 {
-    let n = cross(a, b);
-    let nn = norm(n);
+pub fn off_arc(p: &Vector3<f64>, a: &Vector3<f64>, b: &Vector3<f64>) -> f64 {
+    let n = a.cross(b);
+    let nn = n.norm();
     if nn >= 1e-12 {
         // The foot of p on the great circle lies on the (shorter) arc when it is turned
         // from a towards b and from itself on towards b, both about the normal a × b.
-        let foot = sub(p, scale(n, dot(p, n) / (nn * nn)));
-        if dot(cross(a, foot), n) >= 0.0 && dot(cross(foot, b), n) >= 0.0 && norm(foot) > 0.0 {
-            return (dot(p, n) / nn).abs().clamp(0.0, 1.0).asin().to_degrees();
+        let foot = p - n * (p.dot(&n) / (nn * nn));
+        if a.cross(&foot).dot(&n) >= 0.0 && foot.cross(b).dot(&n) >= 0.0 && foot.norm() > 0.0 {
+            return (p.dot(&n) / nn).abs().clamp(0.0, 1.0).asin().to_degrees();
         }
     }
     // The nearer end: the one with the larger cosine (a and b are both unit).
-    angle(p, if dot(p, a) >= dot(p, b) { a } else { b })
-}
-
-fn scale(a: [f64; 3], k: f64) -> [f64; 3] {
-    [a[0] * k, a[1] * k, a[2] * k]
+    angle(p, if p.dot(a) >= p.dot(b) { a } else { b })
 }
 
 #[cfg(test)]
@@ -437,46 +314,54 @@ mod tests {
 
     #[test]
     fn distances() {
-        let (a, b) = ([0.0, 0.0, 0.0], [10.0, 0.0, 0.0]);
-        assert!((off_segment([5.0, 0.3, 0.0], a, b, None) - 0.3).abs() < 1e-12);
-        assert!((off_segment([12.0, 0.0, 0.0], a, b, None) - 2.0).abs() < 1e-12);
-        // An arc of radius 10 about the origin.
-        let circle = Spiral {
-            center: [0.0; 3],
-            normal: 2,
-            sweep: std::f64::consts::FRAC_PI_2,
-            radii: [10.0, 10.0],
+        let (a, b) = (Point3::origin(), Point3::new(10.0, 0.0, 0.0));
+        assert!((off_segment(&Point3::new(5.0, 0.3, 0.0), &a, &b, None) - 0.3).abs() < 1e-12);
+        assert!((off_segment(&Point3::new(12.0, 0.0, 0.0), &a, &b, None) - 2.0).abs() < 1e-12);
+        // Arcs about the origin in XY, counter-clockwise from (10, 0).
+        let path = |end: [f64; 3], extra_turns: u32| {
+            let mut from = Joints::default();
+            let mut to = Joints::default();
+            for (k, axis) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
+                from.set(axis, [10.0, 0.0, 0.0][k]);
+                to.set(axis, end[k]);
+            }
+            let arc = crate::ir::Arc {
+                clockwise: false,
+                plane: crate::ir::Plane::XY,
+                center: nalgebra::Vector3::zeros(),
+                extra_turns,
+            };
+            ArcPath::new(&from, &to, &arc).expect("plane axes known")
         };
+        let (s, e) = (Point3::new(10.0, 0.0, 0.0), Point3::new(0.0, 10.0, 0.0));
+        // A quarter circle of radius 10.
+        let circle = path([0.0, 10.0, 0.0], 0);
         let c = Some(&circle);
-        let (s, e) = ([10.0, 0.0, 0.0], [0.0, 10.0, 0.0]);
         assert!(
-            (off_segment([7.0, 7.0, 0.0], s, e, c) - (98f64.sqrt() - 10.0).abs()).abs() < 1e-12
+            (off_segment(&Point3::new(7.0, 7.0, 0.0), &s, &e, c) - (98f64.sqrt() - 10.0).abs())
+                .abs()
+                < 1e-12
         );
         // A spiral from radius 10 to 11 over a quarter turn: 10.5 half way, and the
         // start's circle is 0.5 off there; two turns of it, the point on the second.
-        let spiral = Spiral {
-            radii: [10.0, 11.0],
-            ..circle
-        };
+        let spiral = path([0.0, 11.0, 0.0], 0);
         let h = std::f64::consts::FRAC_1_SQRT_2;
-        let mid = [10.5 * h, 10.5 * h, 0.0];
-        assert!(off_segment(mid, s, [0.0, 11.0, 0.0], Some(&spiral)) < 1e-12);
-        assert!((off_segment(mid, s, e, c) - 0.5).abs() < 1e-12);
-        assert!((spiral.param(mid, s, 0.0) - 0.5).abs() < 1e-12);
-        let two = Spiral {
-            sweep: 4.0 * std::f64::consts::TAU,
-            radii: [10.0, 14.0],
-            ..circle
-        };
-        let second = [11.125 * h, 11.125 * h, 0.0];
-        assert!(off_segment(second, s, [14.0, 0.0, 0.0], Some(&two)) < 1e-12);
-        assert!((two.param(second, s, 0.4) - 1.125 / 4.0).abs() < 1e-12);
-        assert!((circle.length(0.0, 1.0, 0.0) - 5.0 * std::f64::consts::PI).abs() < 1e-12);
-        let (x, y) = ([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]);
-        assert!(off_arc([h, h, 0.0], x, y) < 1e-9);
+        let mid = Point3::new(10.5 * h, 10.5 * h, 0.0);
+        assert!(off_segment(&mid, &s, &Point3::new(0.0, 11.0, 0.0), Some(&spiral)) < 1e-12);
+        assert!((off_segment(&mid, &s, &e, c) - 0.5).abs() < 1e-12);
+        assert!((spiral.param(&mid, 0.0) - 0.5).abs() < 1e-12);
+        // Four whole turns from radius 10 to 14.
+        let two = path([14.0, 0.0, 0.0], 3);
+        assert!((two.sweep - 4.0 * std::f64::consts::TAU).abs() < 1e-12);
+        let second = Point3::new(11.125 * h, 11.125 * h, 0.0);
+        assert!(off_segment(&second, &s, &Point3::new(14.0, 0.0, 0.0), Some(&two)) < 1e-12);
+        assert!((two.param(&second, 0.4) - 1.125 / 4.0).abs() < 1e-12);
+        assert!((circle.stretch(0.0, 1.0).1 - 5.0 * std::f64::consts::PI).abs() < 1e-12);
+        let (x, y) = (Vector3::x(), Vector3::y());
+        assert!(off_arc(&Vector3::new(h, h, 0.0), &x, &y) < 1e-9);
         let t = 1f64.to_radians();
-        let p = [h * t.cos(), h * t.cos(), t.sin()];
-        assert!((off_arc(p, x, y) - 1.0).abs() < 1e-9);
-        assert!((off_arc([-1.0, 0.0, 0.0], x, y) - 90.0).abs() < 1e-9);
+        let p = Vector3::new(h * t.cos(), h * t.cos(), t.sin());
+        assert!((off_arc(&p, &x, &y) - 1.0).abs() < 1e-9);
+        assert!((off_arc(&-Vector3::x(), &x, &y) - 90.0).abs() < 1e-9);
     }
 }

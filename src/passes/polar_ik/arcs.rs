@@ -356,19 +356,7 @@ impl PolarIk {
     ) -> PolarPoint {
         let path = &shape.path;
         let total = path.length();
-        let xy_len = 0.5 * (path.r0 + path.r1) * path.sweep.abs();
-        let dn = match (path.from.get(path.n), path.to.get(path.n)) {
-            (Some(a), Some(b)) => b - a,
-            _ => 0.0,
-        };
-        // The XY and whole lengths of the stretch from `t0` to `t1` (on a spiral the
-        // radius at its middle, and the radius change).
-        let stretch = |t0: f64, t1: f64| {
-            let dt = t1 - t0;
-            let along = path.radius_at(0.5 * (t0 + t1)) * path.sweep.abs() * dt;
-            let xy = along.hypot((path.r1 - path.r0) * dt);
-            (xy, xy.hypot(dn * dt))
-        };
+        let xy_len = path.stretch(0.0, 1.0).0;
         // The programmed speed along the arc, mm/s (or the programmed time's).
         let speed = match (m.feed.mode, m.feed.rate) {
             (FeedMode::PerMinute, Some(f)) if f > 0.0 => Some(f / 60.0),
@@ -411,7 +399,7 @@ impl PolarIk {
             }
             self.to_polar(&mut joints, &piece.to);
             let seconds = speed.map_or(0.0, |v| {
-                let (piece_xy, len) = stretch(prev_t, piece.s);
+                let (piece_xy, len) = path.stretch(prev_t, piece.s);
                 let mut t = len / v;
                 if self.options.speed_cap && self.turns(&prev_node, &piece.to) {
                     // The piece's closest approach to the centre: its chord's, less
