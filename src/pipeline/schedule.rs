@@ -46,10 +46,11 @@ pub(super) enum Task {
 /// The reading thread reads while fewer batches than this are on their way, and works on
 /// stages otherwise: reading is never held up (where it is the slowest stage, as in the
 /// identity pipeline, it runs all the time), and memory stays bounded (a batch of
-/// polar-printer output is about 0.6 MB). Pieces of a cut batch count one each: 16 leave
-/// room to read on while the IK look-ahead's 16 pieces are on their way (at 8 the E-moc
-/// pipeline waited for them, 1.83 against 1.63 s in a model of the run's stage times).
-const MAX_IN_FLIGHT: usize = 16;
+/// polar-printer output is about 0.6 MB). Pieces of a cut batch count one each: 12 leave
+/// room to read on while the IK look-ahead's 16 pieces are on their way (in a model of
+/// the E-moc run's stage times: 1.83 s at 8, 1.61 at 12, 1.60 at 16; peak RSS 14.5 MB at
+/// 16 against 11.8 at 8).
+const MAX_IN_FLIGHT: usize = 12;
 
 /// Which stage runs which batch next.
 pub(super) struct Schedule {
