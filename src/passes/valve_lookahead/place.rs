@@ -415,25 +415,23 @@ impl ValveLookahead {
             self.set_dwell(d, id, seconds - error);
             return false;
         }
-        // Later commands placed before this one's target (an open that follows a close
-        // at once) are taken out and placed again after it, so the order holds.
-        let boundary = self
-            .queue
-            .events
-            .get(&id)
-            .and_then(|ev| self.target_of(ev))
-            .map_or(0, |(b, _)| b);
-        let later: Vec<u64> = self
+        // Every later command is taken out and placed again after this one, in run
+        // order, so the order holds and each finds its own lower bound again: an open
+        // that follows a close at once lies before the close's target, and a short run's
+        // close lies before its own run's start (its open, put back alone, would stop
+        // at that close, behind its own run's close, and wait a dwell for its delay).
+        // Taken out last placed first, so each merges its own split.
+        let mut later: Vec<u64> = self
             .queue
             .items
             .iter()
-            .take(boundary)
             .filter_map(|it| match it.kind {
                 Kind::Marker(l) if l > id => Some(l),
                 _ => None,
             })
             .collect();
-        for &l in &later {
+        later.sort_unstable();
+        for &l in later.iter().rev() {
             self.undo_marker(l);
         }
         self.undo(id);
