@@ -231,6 +231,30 @@ fn commands(items: &[Timed]) -> Vec<(f64, bool)> {
         .collect()
 }
 
+/// The times of the opens (`open`) or of the closes.
+fn command_times(items: &[Timed], open: bool) -> Vec<f64> {
+    commands(items)
+        .into_iter()
+        .filter(|c| c.1 == open)
+        .map(|c| c.0)
+        .collect()
+}
+
+/// Each run's start (`open`) or end and how far ahead of it its open or close comes,
+/// seconds, for a program of `n` runs.
+fn leads(items: &[Timed], open: bool, n: usize) -> Vec<(f64, f64)> {
+    let runs = runs(items);
+    let times = command_times(items, open);
+    assert_eq!((runs.len(), times.len()), (n, n));
+    runs.iter()
+        .zip(times)
+        .map(|(r, t)| {
+            let at = if open { r.0 } else { r.1 };
+            (at, at - t)
+        })
+        .collect()
+}
+
 /// Checks that the commands alternate open/close, one pair per run, each open
 /// `open_delay` before its run starts and each close `close_delay` before it ends
 /// (within `TOL`); returns the worst error and the number of runs.
@@ -610,6 +634,17 @@ fn real_sliced_file_through_the_polar_printer_preset() {
     // open comes at most a millisecond early.
     assert!(worst <= 1e-3 + 1e-9, "{worst}");
     assert_eq!(late_opens(&items, 0.2, 0.1), 0);
+    // A close that falls into a wait goes to the whole millisecond after it: the flow
+    // stops after the run ends, never before (beyond the 0.1 ms the pass settles to).
+    let closes = commands(&items).into_iter().filter(|c| !c.1);
+    for (run, (close, _)) in runs(&items).iter().zip(closes) {
+        assert!(
+            run.1 - close <= 0.1 + SETTLED,
+            "run ending {:.4} s: close {:.6} s ahead",
+            run.1,
+            run.1 - close
+        );
+    }
     eprintln!("cube: {n} runs, worst {worst:.2e} s, {:?}", start.elapsed());
 }
 
@@ -814,24 +849,42 @@ fn short_run_close_due_before_its_start_keeps_its_material() {
     let items = timeline(&out, &polar(), Timing::ConstantVelocity, Flow::Screw);
     let (share, at) = least_valve_cover(&items, 0.2, 0.1);
     assert!(share >= 0.99, "block at {at} s: valve open {share}\n{out}");
-    let runs = runs(&items);
-    let closes: Vec<f64> = commands(&items)
-        .into_iter()
-        .filter(|c| !c.1)
-        .map(|c| c.0)
-        .collect();
-    assert_eq!(runs.len(), 2);
-    assert_eq!(closes.len(), 2);
-    for (run, close) in runs.iter().zip(&closes) {
-        let lead = run.1 - close;
+    for (end, lead) in leads(&items, false, 2) {
         assert!(
             (0.1 - TOL..=0.1 + SETTLED).contains(&lead),
-            "run ending {:.4} s: close {lead:.6} s ahead\n{out}",
-            run.1
+            "run ending {end:.4} s: close {lead:.6} s ahead\n{out}"
         );
     }
     // The first run's open lacks 188 ms after its 12 ms hop; the second one's has the
     // 133 ms travel and the first run before it, and needs no wait.
     let waited: f64 = dwells(&out).iter().sum();
     assert!(waited < 0.2, "{waited} s of dwells\n{out}");
+}
+
+/// Corpus c-mini centred on the table (fixture's first line): the open of the run after a
+/// 7 ms hop follows the previous run's close at once and waits 93.016 ms more, which the
+/// firmware can only wait as `G4 P94` (whole milliseconds): the open came 0.984 ms early.
+/// The wait stays whole milliseconds and the open moves 0.984 ms later, over the end of
+/// the previous run. Through the library with the verification on, and on the printed
+/// text every open is its delay ahead of its run within the 0.1 ms the pass settles to,
+/// and every dwell is whole milliseconds.
+#[test]
+fn open_moves_over_motion_before_its_whole_millisecond_wait() {
+    let src = include_str!("fixtures/polar/valve_open_waits_after_a_hop.gcode");
+    let out = compile_verified(src, &preset(false, [90.0, 90.0], &[]));
+    let items = timeline(&out, &polar(), Timing::ConstantVelocity, Flow::Screw);
+    for (start, lead) in leads(&items, true, 2) {
+        assert!(
+            (lead - 0.2).abs() <= SETTLED,
+            "run at {start:.4} s: open {lead:.6} s ahead\n{out}"
+        );
+    }
+    let waits = dwells(&out);
+    assert!(!waits.is_empty(), "{out}");
+    for s in waits {
+        assert!(
+            ((s / DWELL_STEP) - (s / DWELL_STEP).round()).abs() < 1e-9,
+            "{s}"
+        );
+    }
 }
