@@ -67,10 +67,14 @@
 //! (`G4`) for the remainder is inserted right before the run's first extruding move, with
 //! a warning (the first, then a count). When a backend prints, the dwell is timed as the
 //! controller waits: whole milliseconds, rounded up so the valve is open when the run
-//! starts (the open then comes less than a millisecond early); a command that splits it
-//! splits it on whole milliseconds too. A close that cannot be early enough (a run
-//! shorter than `close_delay_s` right after a line of unknown time) goes as early as it
-//! can, with a warning.
+//! starts. Under constant velocity the open then moves the fraction later over the motion
+//! before the wait, to its delay; with no motion there (or under trapezoid timing, where
+//! a split printed rounded can add a stop) it comes less than a millisecond early. A
+//! command that falls into a wait splits it on whole milliseconds too, on the side safe
+//! for the material: an open earlier, a close later (up to a millisecond late, never
+//! early: an early close starves the run's last block). A close that cannot be early
+//! enough (a run shorter than `close_delay_s` right after a line of unknown time) goes
+//! as early as it can, with a warning.
 //!
 //! # Overlapping events (the rule)
 //! Commands are issued in run order: close of run k, then open of run k+1, each after

@@ -29,6 +29,15 @@ pub(super) struct Event {
     span: Span,
 }
 
+/// What settling does with a command off its delay.
+enum Step {
+    /// Nothing more to move: true when it is as close as it can come, false when its
+    /// dwell changed.
+    Done(bool),
+    /// The command moves; `keep_dwell`: an open keeps its own wait.
+    Move { keep_dwell: bool },
+}
+
 /// Where a command goes among the held items.
 struct Spot {
     /// The index it is inserted at.
@@ -115,7 +124,7 @@ impl ValveLookahead {
             }
             lower -= 1;
         }
-        let spot = self.spot(lower, b, t_target - ev.delay - ev.corr);
+        let spot = self.spot(lower, b, t_target - ev.delay - ev.corr, ev.open);
         let marker = self.marker(&ev, id);
         self.queue.items.insert(spot.pos, marker);
         self.clock.dirty = true;
@@ -129,8 +138,10 @@ impl ValveLookahead {
     }
 
     /// Where a command wanted at time `desired` goes among items `lower..b`: after the
-    /// item that ends then, or inside the one running then (split there).
-    fn spot(&mut self, lower: usize, b: usize, desired: f64) -> Spot {
+    /// item that ends then, or inside the one running then (split there). Inside a
+    /// valve's wait, which the controller times in whole steps, it goes to the step on
+    /// its safe side: earlier for an open (`early`), later for a close.
+    fn spot(&mut self, lower: usize, b: usize, desired: f64, early: bool) -> Spot {
         let mut spot = Spot {
             pos: lower,
             clamped: true,
@@ -149,10 +160,13 @@ impl ValveLookahead {
                 spot.pos = i;
             } else {
                 let saved = it.clone();
-                match self.split(i, desired - it.start) {
+                match self.split(i, desired - it.start, early) {
                     Some((ea, sb)) => {
                         spot.original = Some((saved, ea, sb));
                         spot.pos = i + 1;
+                    }
+                    None if matches!(saved.kind, Kind::Dwell { owner: Some(_), .. }) => {
+                        spot.pos = if early { i } else { i + 1 };
                     }
                     None => {
                         let it = &self.queue.items[i];
@@ -401,75 +415,35 @@ impl ValveLookahead {
     /// True when the command went back to the best placement found before (its error
     /// grew after a step): settling it further would circle.
     fn fix(&mut self, id: u64, error: f64, out: &mut Output<'_>) -> bool {
-        // An open's own dwell takes the error first.
-        if let Some(d) = self.owned_dwell(id)
-            && let Kind::Dwell { seconds, .. } = self.queue.items[d].kind
-            && seconds - error > 0.0
-        {
-            // The dwell moves in whole printed steps: when the error is less than one,
-            // this is as close as the open can come (early, the safe side). Should the
-            // commands around it move it late, a later round takes it up again.
-            if self.dwell_up(seconds - error) == seconds {
-                return true;
-            }
-            self.set_dwell(d, id, seconds - error);
-            return false;
-        }
-        // Later commands placed before this one's target (an open that follows a close
-        // at once) are taken out and placed again after it, so the order holds.
-        let boundary = self
-            .queue
-            .events
-            .get(&id)
-            .and_then(|ev| self.target_of(ev))
-            .map_or(0, |(b, _)| b);
-        let later: Vec<u64> = self
+        let keep_dwell = match self.settle_step(id, error) {
+            Step::Done(settled) => return settled,
+            Step::Move { keep_dwell } => keep_dwell,
+        };
+        // Every later command is taken out and placed again after this one, in run
+        // order, so the order holds and each finds its own lower bound again: an open
+        // that follows a close at once lies before the close's target, and a short run's
+        // close lies before its own run's start (its open, put back alone, would stop
+        // at that close, behind its own run's close, and wait a dwell for its delay).
+        // Taken out last placed first, so each merges its own split.
+        let mut later: Vec<u64> = self
             .queue
             .items
             .iter()
-            .take(boundary)
             .filter_map(|it| match it.kind {
                 Kind::Marker(l) if l > id => Some(l),
                 _ => None,
             })
             .collect();
-        for &l in &later {
+        later.sort_unstable();
+        for &l in later.iter().rev() {
             self.undo_marker(l);
         }
-        self.undo(id);
-        let mut went_back = false;
-        if let Some(e) = self.queue.events.get_mut(&id) {
-            // Secant step on error(corr): a split can add a corner (the printed split
-            // point is rounded), so the command's time does not move 1:1 with the wish.
-            let slope = match e.last {
-                Some((c1, e1)) if (e.corr - c1).abs() > 1e-9 => (error - e1) / (e.corr - c1),
-                _ => 1.0,
-            };
-            let slope = if slope.is_finite() && (0.2..=20.0).contains(&slope) {
-                slope
-            } else {
-                1.0
-            };
-            // The last step crossed the delay within a millisecond and landed further
-            // off: a split there snaps to a block's end, so the time jumps over the
-            // delay. The better side of the jump is as close as the command can come.
-            let back = match e.last {
-                Some((c1, e1))
-                    if e1.signum() != error.signum()
-                        && e1.abs() < error.abs()
-                        && (e.corr - c1).abs() < JUMP_S =>
-                {
-                    Some(c1)
-                }
-                _ => None,
-            };
-            e.last = Some((e.corr, error));
-            match back {
-                Some(corr) => e.corr = corr,
-                None => e.corr -= error / slope,
-            }
-            went_back = back.is_some();
+        if keep_dwell {
+            self.undo_marker(id);
+        } else {
+            self.undo(id);
         }
+        let went_back = self.next_correction(id, error, keep_dwell);
         // Re-placing repeats no warning.
         self.queue.replacing = true;
         self.place(id, out);
@@ -480,6 +454,113 @@ impl ValveLookahead {
         went_back
     }
 
+    /// What settling does with event `id`'s command, `error` seconds off its delay.
+    fn settle_step(&mut self, id: u64, error: f64) -> Step {
+        let Some((open, clamped)) = self.queue.events.get(&id).map(|e| (e.open, e.clamped)) else {
+            return Step::Done(true);
+        };
+        if self.on_wait_step(id, open, error) {
+            return Step::Done(true);
+        }
+        // An open's own dwell takes the error first, in whole printed steps.
+        if let Some(d) = open.then(|| self.owned_dwell(id)).flatten()
+            && let Kind::Dwell { seconds, .. } = self.queue.items[d].kind
+        {
+            // Less than a step off: the open moves over the motion before its wait, where
+            // it can go to the microsecond (`G4 P83.4` waits 83 ms on RepRapFirmware, so
+            // the wait is `G4 P84` and the open comes 0.6 ms later). Early, it moves
+            // later only as far as that motion reaches. Under constant velocity only: with
+            // acceleration the split point, printed rounded, can add a stop that moves
+            // the commands around it (the previous close) by more than it gains.
+            let room = self.find_marker(id).filter(|&m| m < d).map_or(0.0, |m| {
+                self.queue.items[d].start - self.queue.items[m].start
+            });
+            let constant_velocity = self.clock.window == 0;
+            if constant_velocity
+                && error.abs() < self.dwell_step()
+                && error < room
+                && (error > 0.0 || !clamped)
+            {
+                return Step::Move { keep_dwell: true };
+            }
+            if seconds - error > 0.0 {
+                // Less than a step early with no motion to move over: as close as the
+                // open can come (early, the safe side). Should the commands around it
+                // move it late, a later round takes it up again.
+                if self.dwell_up(seconds - error) == seconds {
+                    return Step::Done(true);
+                }
+                self.set_dwell(d, id, seconds - error);
+                return Step::Done(false);
+            }
+        }
+        Step::Move { keep_dwell: false }
+    }
+
+    /// Whether event `id`'s command sits at an edge of a valve's wait, on the side safe
+    /// for the material (an open early, a close late) and less than a printed step off
+    /// its delay: the controller times the wait in whole steps, so it can come no closer.
+    fn on_wait_step(&self, id: u64, open: bool, error: f64) -> bool {
+        let Some(m) = self.find_marker(id) else {
+            return false;
+        };
+        let neighbour = match open {
+            true if error > 0.0 => m + 1,
+            false if error < 0.0 && m > 0 => m - 1,
+            _ => return false,
+        };
+        error.abs() < self.dwell_step()
+            && self
+                .queue
+                .items
+                .get(neighbour)
+                .is_some_and(|it| matches!(it.kind, Kind::Dwell { owner: Some(_), .. }))
+    }
+
+    /// The next correction of event `id`'s wanted time after an `error` (seconds); true
+    /// when it goes back to the better one before. `restart`: the command moves off its
+    /// earliest point over the motion before its own wait, where the wanted time with
+    /// the wait in place is right as it is.
+    fn next_correction(&mut self, id: u64, error: f64, restart: bool) -> bool {
+        let Some(e) = self.queue.events.get_mut(&id) else {
+            return false;
+        };
+        if restart && e.clamped {
+            e.corr = 0.0;
+            e.last = None;
+            return false;
+        }
+        // Secant step on error(corr): a split can add a corner (the printed split
+        // point is rounded), so the command's time does not move 1:1 with the wish.
+        let slope = match e.last {
+            Some((c1, e1)) if (e.corr - c1).abs() > 1e-9 => (error - e1) / (e.corr - c1),
+            _ => 1.0,
+        };
+        let slope = if slope.is_finite() && (0.2..=20.0).contains(&slope) {
+            slope
+        } else {
+            1.0
+        };
+        // The last step crossed the delay within a millisecond and landed further
+        // off: a split there snaps to a block's end, so the time jumps over the
+        // delay. The better side of the jump is as close as the command can come.
+        let back = match e.last {
+            Some((c1, e1))
+                if e1.signum() != error.signum()
+                    && e1.abs() < error.abs()
+                    && (e.corr - c1).abs() < JUMP_S =>
+            {
+                Some(c1)
+            }
+            _ => None,
+        };
+        e.last = Some((e.corr, error));
+        match back {
+            Some(corr) => e.corr = corr,
+            None => e.corr -= error / slope,
+        }
+        back.is_some()
+    }
     /// Creates and places an event.
     pub(super) fn event(&mut self, open: bool, target: u64, span: Span, out: &mut Output<'_>) {
         let id = self.fresh();

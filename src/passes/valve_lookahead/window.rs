@@ -123,6 +123,13 @@ impl ValveLookahead {
         let step = self.dwell_step();
         (seconds / step - 1e-6).ceil() * step
     }
+
+    /// `seconds` down to the previous printable dwell (a hair under a whole step stays
+    /// on it).
+    pub(super) fn dwell_down(&self, seconds: f64) -> f64 {
+        let step = self.dwell_step();
+        (seconds / step + 1e-6).floor() * step
+    }
 }
 
 impl ValveLookahead {
@@ -241,8 +248,10 @@ impl ValveLookahead {
     }
 
     /// Splits item `i` `dt` seconds into it; returns the end id of the first part and
-    /// the start id of the second.
-    pub(super) fn split(&mut self, i: usize, dt: f64) -> Option<(u64, u64)> {
+    /// the start id of the second. A valve's wait splits on whole printed steps, towards
+    /// the safe side of the command: `early` (an open: the valve is open before the
+    /// material comes) or late (a close: the flow stops after the material ends).
+    pub(super) fn split(&mut self, i: usize, dt: f64, early: bool) -> Option<(u64, u64)> {
         let it = &self.queue.items[i];
         let (first, second) = match &it.kind {
             Kind::Move(m) => self.split_move(it, m, dt)?,
@@ -251,7 +260,8 @@ impl ValveLookahead {
                 // A valve's wait is on the printed dwells' grid, and so are its parts (each
                 // is printed on its own).
                 let a = match owner {
-                    Some(_) => self.dwell_nearest(dt),
+                    Some(_) if early => self.dwell_down(dt),
+                    Some(_) => self.dwell_up(dt),
                     None => micros(dt),
                 };
                 let b = match owner {
