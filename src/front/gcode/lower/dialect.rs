@@ -84,6 +84,7 @@ impl Lowerer {
             }
             if !self.calls_inline {
                 self.feed = None;
+                self.after_call = super::after_call::ALL;
             }
         }
         out.push(block);

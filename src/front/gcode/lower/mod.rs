@@ -67,6 +67,9 @@ pub(crate) struct Lowerer {
     /// Lowering a subprogram body for `expand-subprograms`: calls (M98, simple o-calls)
     /// are expanded by the caller, so they change no position or feed here.
     calls_inline: bool,
+    /// The modes a subprogram called from here may have changed, not restated since
+    /// ([`after_call`] bits): lines that depend on them are copied as written.
+    after_call: u8,
     /// The dialect in force: the option's, or under `auto` the one the header names
     /// (until the program starts).
     dialect: Dialect,
@@ -107,6 +110,7 @@ impl Lowerer {
             saw_text: false,
             program_started: false,
             calls_inline: false,
+            after_call: 0,
             dialect: Dialect::Auto,
             cycle: cycle::CycleModal::default(),
         };
@@ -384,6 +388,16 @@ enum Placement {
     TopLevel { keeps_modes: bool },
     /// Inside a block (control flow, subprogram): nothing may be inserted before it.
     Inside,
+}
+
+/// The modes a subprogram may leave changed, as bits of [`Lowerer`]'s `after_call`.
+pub(super) mod after_call {
+    /// G90/G91.
+    pub const DISTANCE: u8 = 1;
+    /// The motion mode: G0-G3, or a canned cycle (G81 ...).
+    pub const MOTION: u8 = 2;
+    /// Both: what a call the frontend does not expand leaves unknown.
+    pub const ALL: u8 = DISTANCE | MOTION;
 }
 
 /// Classification of a line outside the plain grammar.
