@@ -881,3 +881,35 @@ fn printed_calls_restate_the_modes_after_them() {
     // The L10 and L0 calls are followed by the rapid; the L2 call by M30.
     assert_eq!(after_call, [[0.0, 0.0, 0.25]; 2], "\n{printed}");
 }
+
+/// Only the modes a subroutine's lines can change are unknown after its call: after an
+/// o-word subroutine that sets none (a dwell), the next move is read as usual; after one
+/// that sets G91, a move that does not restate G90 is copied as written (warned), so the
+/// controller reads it in G91. Calls with arguments pass through, so nothing reads
+/// these lines again.
+#[test]
+fn only_the_modes_a_subroutine_sets_are_unknown_after_it() {
+    let src = "G21 G90 G0 X0 Y0 Z5\no100 sub\nG4 P1\no100 endsub\no200 sub\nG91\no200 endsub\no100 call [1]\nG0 X5\no200 call [1]\nG0 X2\nG90 G0 X3\nM30\n";
+    let (ok, printed, err) = run_cli(src, &["--emit", "gcode"]);
+    assert!(ok, "{err}");
+    assert_eq!(err.matches("gcode::after-call").count(), 1, "{err}");
+    assert!(err.contains(":11:1]"), "{err}");
+    let lines: Vec<&str> = printed.lines().collect();
+    let at = |l: &str| lines.iter().position(|x| *x == l).unwrap();
+    // `G0 X2` as written, with no G90 put before it; `G0 X5` and `G0 X3` in G90.
+    assert_eq!(lines[at("G0 X2") - 1], "o200 call [1]", "{printed}");
+    assert!(
+        lines[..at("G0 X5")]
+            .iter()
+            .rev()
+            .take(3)
+            .any(|l| l.contains("G90"))
+    );
+    assert!(
+        lines[..at("G0 X3")]
+            .iter()
+            .rev()
+            .take(2)
+            .any(|l| l.contains("G90"))
+    );
+}

@@ -70,6 +70,10 @@ pub(crate) struct Lowerer {
     /// The modes a subprogram called from here may have changed, not restated since
     /// ([`after_call`] bits): lines that depend on them are copied as written.
     after_call: u8,
+    /// The modes each o-word subroutine read so far may change ([`after_call`] bits), by
+    /// label as [`oword_call`] spells it; the one being read, with its label.
+    sub_modes: Vec<(String, u8)>,
+    reading_sub: Option<(String, u8)>,
     /// The dialect in force: the option's, or under `auto` the one the header names
     /// (until the program starts).
     dialect: Dialect,
@@ -111,6 +115,8 @@ impl Lowerer {
             program_started: false,
             calls_inline: false,
             after_call: 0,
+            sub_modes: Vec::new(),
+            reading_sub: None,
             dialect: Dialect::Auto,
             cycle: cycle::CycleModal::default(),
         };
@@ -359,6 +365,9 @@ impl Lowerer {
             return;
         }
         if !self.oword_stack.is_empty() {
+            if let Some((_, bits)) = &mut self.reading_sub {
+                *bits |= dialect::modes_set(toks);
+            }
             out.push(self.pass_through(text, span, VerbatimReason::ControlFlow));
             return;
         }
