@@ -316,11 +316,10 @@ fn error_snapshots() {
             "subprograms::modes",
             (2, 1),
         ),
-        // A bare X after a body that left a canned cycle drills a hole whose R and Z
-        // the expansion does not carry out of the body.
+        // A bare X after a body that left G2 in force is an arc without a centre.
         (
-            "modes_left_cycle",
-            "G0 X0 Y0 Z1\nM98 P1\nX5\nG80\nM30\nO1\nG91 G81 X1 Z-1 R0 F100\nM99\n",
+            "modes_left_arc",
+            "G0 X0 Y0 Z1\nM98 P1\nX5\nM30\nO1\nG1 X1 F100\nG2 X2 Y0 I0.5 J0\nM99\n",
             "subprograms::modes",
             (3, 1),
         ),

@@ -201,7 +201,7 @@ impl MainState {
                     )
                     .at_bytes(block.span.line, &v.text, 0, v.text.trim_end().len())
                     .with_label("depends on the modes the subprogram left")
-                    .with_help("write the modes it moves in on the line (`G90 G0 X1`, `G91 G1 X1`), or restate the canned cycle with all its words"),
+                    .with_help("write the distance and motion modes it moves in on the line (`G90 G1 X1`), or the words the mode the subprogram left needs (an arc's centre)"),
                 );
             }
         }

@@ -421,10 +421,11 @@ pub(super) struct Depends {
     /// passed through with the modes it was written in (parameter assignments aside), a
     /// command with coordinates.
     pub units: bool,
-    /// A line before the first move depends on the distance mode: a command with
-    /// coordinates, or a line passed through with its modes. (The frontend copies the
-    /// moves that do not restate the distance and motion modes after a call, and this
-    /// pass reads them again in the modes the body left.)
+    /// A command with coordinates (`G28 X0`) before the first move depends on the
+    /// distance mode. (The frontend copies the moves that do not restate the distance
+    /// and motion modes after a call with no modes of their own, and this pass reads them
+    /// again in the modes the body left. A line with parameters or expressions keeps the
+    /// modes the frontend read it in: not checked.)
     pub distance: bool,
 }
 
@@ -450,8 +451,7 @@ fn read_in_modes(
             BlockKind::Offset(_) => (true, false),
             BlockKind::Command(c) => (c.modes.is_some(), c.modes.is_some()),
             BlockKind::Verbatim(v) => {
-                let m = v.modes.is_some() && !main::only_assignments(&v.text);
-                (m, m)
+                (v.modes.is_some() && !main::only_assignments(&v.text), false)
             }
             BlockKind::Dwell { .. } | BlockKind::Comment => (false, false),
         };

@@ -52,6 +52,28 @@ impl CycleModal {
         self.to_initial
     }
 
+    /// The series in force, for the state a subprogram body leaves.
+    pub(super) fn series(&self) -> crate::ir::CycleSeries {
+        crate::ir::CycleSeries {
+            code: self.code,
+            r: self.r,
+            z: self.z,
+            q: self.q,
+            p: self.p,
+            initial: self.initial,
+        }
+    }
+
+    /// Continues the series `s` (the caller's into a body, the body's after a call).
+    pub(super) fn set_series(&mut self, s: crate::ir::CycleSeries) {
+        self.code = s.code;
+        self.r = s.r;
+        self.z = s.z;
+        self.q = s.q;
+        self.p = s.p;
+        self.initial = s.initial;
+    }
+
     /// Sets the retract mode (the dialect's start, or the caller's across a call).
     pub(super) fn set_retract_to_initial(&mut self, to_initial: bool) {
         self.to_initial = to_initial;

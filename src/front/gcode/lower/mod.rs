@@ -155,6 +155,7 @@ impl Lowerer {
             offsets: self.offsets,
             suspended: self.suspended,
             retract_to_initial: self.cycle.retract_to_initial(),
+            cycle: self.cycle.series(),
             dialect: self.dialect,
         }
     }
@@ -173,6 +174,7 @@ impl Lowerer {
         self.offsets = s.offsets;
         self.suspended = s.suspended;
         self.cycle.set_retract_to_initial(s.retract_to_initial);
+        self.cycle.set_series(s.cycle);
         self.dialect = s.dialect;
     }
 
