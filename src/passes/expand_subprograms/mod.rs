@@ -43,9 +43,10 @@
 //!   modes a body leaves are followed instead, as LinuxCNC and Fanuc keep them after
 //!   `M99`: the frontend copies the lines after a call that move (or set modes) before
 //!   restating both G90/G91 and G0/G1/G2/G3 (or a cycle), and this pass reads them
-//!   again in the modes the body left (a bare `X5` after a G91 body moves 5 on). A
-//!   line it cannot read again is this error at the line: a bare `X5` after a body that
-//!   left a canned cycle drills a hole whose R and Z stayed in the body. A G91 body
+//!   again in the modes the body left (a bare `X5` after a G91 body moves 5 on; after a
+//!   body that left a canned cycle it drills, the series going on, with its initial
+//!   level, across the call). A line it cannot read again is this error at the line (a
+//!   bare `X5` after a body that left `G2` is an arc without a centre). A G91 body
 //!   followed by a command with coordinates (`G28 X0`) before any move is this error at
 //!   the call.
 //! - `subprograms::no-m99`: a Fanuc subprogram runs to the end of the file.
