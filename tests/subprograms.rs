@@ -897,18 +897,8 @@ fn only_the_modes_a_subroutine_sets_are_unknown_after_it() {
     let at = |l: &str| lines.iter().position(|x| *x == l).unwrap();
     // `G0 X2` as written, with no G90 put before it; `G0 X5` and `G0 X3` in G90.
     assert_eq!(lines[at("G0 X2") - 1], "o200 call [1]", "{printed}");
-    assert!(
-        lines[..at("G0 X5")]
-            .iter()
-            .rev()
-            .take(3)
-            .any(|l| l.contains("G90"))
-    );
-    assert!(
-        lines[..at("G0 X3")]
-            .iter()
-            .rev()
-            .take(2)
-            .any(|l| l.contains("G90"))
-    );
+    for (mv, within) in [("G0 X5", 3), ("G0 X3", 2)] {
+        let before = &lines[at(mv) - within..at(mv)];
+        assert!(before.iter().any(|l| l.contains("G90")), "{printed}");
+    }
 }
