@@ -627,3 +627,45 @@ fn g90_cycle_after_homing_needs_only_z() {
     assert_at(drilled[0].1, [5.0, 5.0, -1.0], "first hole");
     assert_at(drilled[1].1, [8.0, 5.0, -1.0], "second hole");
 }
+
+/// A subprogram that leaves a G91 G99 G81 series in force (LinuxCNC keeps modal state
+/// across M99, and the series' initial level with it: interp_cycles.cc keeps `cycle_il`
+/// until a motion code that is not a cycle): after the call a bare `X1` drills one more
+/// hole 1 on, and a restated `G91 G99 G81` line continues the same series, so its R is
+/// still measured from the initial level Z0.25 before the first call (EMC handbook,
+/// "Canned Cycles": "In incremental distance mode, X, Y, and R values are treated as
+/// increments to the current position and Z as an increment from the Z-axis position
+/// before the move involving Z"; https://emc.sourceforge.net/Handbook/node66.html).
+/// Every hole: R 0.5, bottom -0.5, retract to R. Read back from the printed program, for
+/// RepRapFirmware and Grbl.
+#[test]
+fn a_series_left_by_a_subprogram_continues_after_the_call() {
+    let program = "\
+G21 G90 G17
+G0 X0 Y0 Z0.25
+M98 P1 L2
+X1
+G91 G99 G81 X1 Z-1 R0.25 F40
+G90 G80 G0 Z5
+M30
+O1
+G91 G99 G81 X1 Z-1.0 R0.25 F40
+M99
+";
+    for emit in ["rrf", "grbl"] {
+        let printed = succeeded(&run(program, emit, &["--pass", "expand-subprograms"]));
+        assert_no_cycle_codes(&printed);
+        let h = holes(&printed, 1.0);
+        let drilled: Vec<&Hole> = h.iter().filter(|h| !h.feed_ends().is_empty()).collect();
+        let xs: Vec<f64> = drilled.iter().map(|h| h.x).collect();
+        assert_close_all(&xs, &[1.0, 2.0, 3.0, 4.0], emit);
+        for hole in drilled {
+            assert_eq!(hole.y, 0.0, "{emit}");
+            assert_close_all(&hole.feed_ends(), &[-0.5], emit);
+            // Fed to the bottom, then back to R (G99); the last hole then goes on to Z5.
+            let zs: Vec<f64> = hole.zs().collect();
+            assert!(zs.windows(2).any(|w| w == [-0.5, 0.5]), "{emit}: {zs:?}");
+            assert_eq!(hole.approach_z, 0.5, "{emit}: over the hole at R");
+        }
+    }
+}

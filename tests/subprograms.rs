@@ -311,10 +311,17 @@ fn error_snapshots() {
             (2, 1),
         ),
         (
-            "modes_left_g91",
-            "G0 X0\nM98 P1\nG0 X5\nM30\nO1\nG91 G0 X1\nM99\n",
+            "modes_left_g20",
+            "G0 X0\nM98 P1\nG90 G0 X5\nM30\nO1\nG20 G0 X1\nM99\n",
             "subprograms::modes",
             (2, 1),
+        ),
+        // A bare X after a body that left G2 in force is an arc without a centre.
+        (
+            "modes_left_arc",
+            "G0 X0 Y0 Z1\nM98 P1\nX5\nM30\nO1\nG1 X1 F100\nG2 X2 Y0 I0.5 J0\nM99\n",
+            "subprograms::modes",
+            (3, 1),
         ),
         (
             "no_m99",
@@ -670,9 +677,8 @@ fn l0_skips_the_call() {
     assert_eq!(moves, want, "\n{printed}");
 }
 
-/// A body that returns in G91 breaks only the lines after its call that the frontend read
-/// in G90: with nothing but `M30` (and comments, parameters) after the calls, the program
-/// compiles, and the relative body steps on from call to call as on the controller.
+/// A body that returns in G91: the relative body steps on from call to call as on the
+/// controller, and a move after the call that does not restate G90 is read in G91.
 #[test]
 fn modes_left_by_a_body_matter_only_to_lines_that_follow() {
     let src = "G21 G90 G0 X0 Y0 Z5\nM98 P1 L2\n(done)\n#1 = 2\nM98 P1\nM30\nO1\nG91 G0 X1\nG1 Z-1 F100\nG0 Z1\nM99\n";
@@ -685,9 +691,19 @@ fn modes_left_by_a_body_matter_only_to_lines_that_follow() {
         want.push((true, [x, 0.0, 5.0]));
     }
     assert_eq!(moves, want);
-    // A move after the call is read in G90 by the frontend but in G91 by the controller.
-    let (ok, _, err) = run_cli(&src.replace("(done)", "G0 X5"), &["--preset", "duet-cnc"]);
-    assert!(!ok && err.contains("subprograms::modes"), "{err}");
+    // A move after the call that does not restate G90 is read in G91, as the controller
+    // reads it: 5 on from X2, and the next call steps on from X7.
+    let (_, _, moves) = for_rrf(&src.replace("(done)", "G0 X5"), "subprograms::modes");
+    assert_eq!(moves[..7], want[..7]);
+    assert_eq!(
+        moves[7..],
+        [
+            (true, [7.0, 0.0, 5.0]),
+            (true, [8.0, 0.0, 5.0]),
+            (false, [8.0, 0.0, 4.0]),
+            (true, [8.0, 0.0, 5.0]),
+        ]
+    );
 }
 
 /// A subroutine defined between moves is passed over by the frontend, which forgets the
@@ -735,4 +751,154 @@ fn subprograms_reached_from_kept_bodies_stay() {
     // A subprogram nothing reaches is still left out, with its warning.
     assert!(!printed.contains("o9 sub"), "{printed}");
     assert!(stderr.contains("subprograms::unused"), "{stderr}");
+}
+
+/// The moves a printed program makes as X Y Z ends, `rapid` or fed, split into its
+/// holes: each fed stroke's bottom, with the rapid before it (the approach at the R plane)
+/// and the rapid after it (the retract).
+fn drilled(moves: &[(bool, [f64; 3])]) -> Vec<([f64; 3], [f64; 3], [f64; 3])> {
+    let mut holes = Vec::new();
+    for (i, m) in moves.iter().enumerate() {
+        if !m.0 {
+            let before = moves[i - 1];
+            let after = moves[i + 1];
+            assert!(
+                before.0 && after.0,
+                "a feed not between rapids at {i}: {moves:?}"
+            );
+            holes.push((before.1, m.1, after.1));
+        }
+    }
+    holes
+}
+
+/// linuxcnc_m98m99_05_loops: O1 is `G91 G99 G81 X1 Z-1.0 R0.25` and returns with G91, G81
+/// and G99 in force, as LinuxCNC leaves them; the main program restates `G90 G0` after
+/// each call. For RepRapFirmware and Grbl the calls are expanded and the cycle drilled
+/// as moves. LinuxCNC's G91 cycle (interp_cycles.cc, `convert_cycle_xy`: under
+/// `MODE_INCREMENTAL`, `r = R + initial level` and `cc = r + Z`; G-code reference, G81
+/// "Incremental Position" example): from the initial level Z0.25 the R plane is 0.5 and
+/// the bottom -0.5, each repetition one X step on. So: ten holes at X1..X10, then after
+/// `G90 G0 X0 Y0 Z0.25` and the skipped `L0` call, two more at X1 and X2; every hole fed
+/// from R 0.5 to -0.5 and retracted to R (G99). Read back from the printed program.
+#[test]
+fn loops_follow_the_modes_the_body_leaves() {
+    use ncpost::machine::Flavour;
+    let src = fixture("linuxcnc_m98m99_05_loops.ngc");
+    // Grbl has no parameters: the `#1` counter lines (they feed only the PRINT
+    // messages) are left out for it.
+    let no_params: String = src
+        .lines()
+        .filter(|l| !l.trim_start().starts_with('#'))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    for (program, args, flavour) in [
+        (&src, &["--preset", "duet-cnc"][..], Flavour::RrfCnc),
+        (&no_params, &["--emit", "grbl"][..], Flavour::Grbl),
+    ] {
+        let (ok, printed, err) = run_cli(program, args);
+        assert!(ok, "{args:?}: {err}");
+        assert!(!err.contains("subprograms::modes"), "{err}");
+        // Words of the printed lines, comments aside.
+        let words = |w: &str| {
+            printed
+                .lines()
+                .filter(|l| !l.starts_with([';', '(']))
+                .any(|l| l.split_whitespace().any(|x| x == w))
+        };
+        assert!(
+            !words("M98") && !words("M99") && !words("O1"),
+            "{args:?}:\n{printed}"
+        );
+        let moves = reread(&printed, flavour);
+        let holes = drilled(&moves);
+        let xs: Vec<f64> = holes.iter().map(|h| h.1[0]).collect();
+        let want: Vec<f64> = (1..=10).chain(1..=2).map(f64::from).collect();
+        assert_eq!(xs, want, "{args:?}:\n{printed}");
+        for (approach, bottom, retract) in &holes {
+            let [x, y, _] = *bottom;
+            assert_eq!(*approach, [x, y, 0.5], "{args:?}: R plane");
+            assert_eq!(*bottom, [x, 0.0, -0.5], "{args:?}: depth");
+            assert_eq!(*retract, [x, y, 0.5], "{args:?}: G99 retract to R");
+        }
+        // After each call, the `G90 G0 X0 Y0 Z0.25` goes where it says (from X10 after
+        // the ten holes); the program ends where the second call leaves it.
+        let back: Vec<usize> = (1..moves.len())
+            .filter(|&i| moves[i].1 == [0.0, 0.0, 0.25])
+            .collect();
+        assert!(!back.is_empty(), "{printed}");
+        assert_eq!(moves[back[0] - 1].1, [10.0, 0.0, 0.5], "{args:?}");
+        assert_eq!(moves.last().unwrap().1, [2.0, 0.0, 0.5], "{args:?}");
+    }
+}
+
+/// linuxcnc_m98m99_05_loops printed with its calls (`--emit gcode`, no expansion), read
+/// as LinuxCNC runs it: each `M98 P1 L<n>` runs O1's lines n times in the same modal
+/// state, so the body's G91 is in force after the call. The printed program must put
+/// G90 back before the rapid after each call, which then lands at X0 Y0 Z0.25 (read in
+/// G91 it went to X10 Z0.75, and a bare `X0 Y0 Z0.25` after the body's G81 drills).
+#[test]
+fn printed_calls_restate_the_modes_after_them() {
+    use ncpost::readback::{Event, Reader};
+    let src = fixture("linuxcnc_m98m99_05_loops.ngc");
+    let (ok, printed, err) = run_cli(&src, &["--emit", "gcode"]);
+    assert!(ok, "{err}");
+    let lines: Vec<&str> = printed.lines().collect();
+    let o1 = lines
+        .iter()
+        .position(|l| l.trim() == "O1")
+        .expect("O1 printed");
+    let m99 = o1 + lines[o1..].iter().position(|l| l.trim() == "M99").unwrap();
+    let body = &lines[o1 + 1..m99];
+    let mut r = Reader::new(
+        ncpost::motion::Model::default(),
+        Some(ncpost::machine::Flavour::Linuxcnc),
+        None,
+    );
+    let mut after_call = Vec::new();
+    let mut pending = false;
+    for line in &lines[..o1] {
+        if line.split_whitespace().any(|w| w == "M98") {
+            let count = line
+                .split_whitespace()
+                .find_map(|w| w.strip_prefix('L'))
+                .map_or(1, |n| n.parse::<u32>().unwrap());
+            for _ in 0..count {
+                for b in body {
+                    r.line(b);
+                }
+            }
+            pending = true;
+            continue;
+        }
+        if let Some(Event::Move(m)) = r.line(line)
+            && std::mem::take(&mut pending)
+        {
+            after_call.push([Axis::X, Axis::Y, Axis::Z].map(|a| m.to.get(a).unwrap()));
+        }
+    }
+    // The L10 and L0 calls are followed by the rapid; the L2 call by M30.
+    assert_eq!(after_call, [[0.0, 0.0, 0.25]; 2], "\n{printed}");
+}
+
+/// Only the modes a subroutine's lines can change are unknown after its call: after an
+/// o-word subroutine that sets none (a dwell), the next move is read as usual; after one
+/// that sets G91, a move that does not restate G90 is copied as written (warned), so the
+/// controller reads it in G91. Calls with arguments pass through, so nothing reads
+/// these lines again.
+#[test]
+fn only_the_modes_a_subroutine_sets_are_unknown_after_it() {
+    let src = "G21 G90 G0 X0 Y0 Z5\no100 sub\nG4 P1\no100 endsub\no200 sub\nG91\no200 endsub\no100 call [1]\nG0 X5\no200 call [1]\nG0 X2\nG90 G0 X3\nM30\n";
+    let (ok, printed, err) = run_cli(src, &["--emit", "gcode"]);
+    assert!(ok, "{err}");
+    assert_eq!(err.matches("gcode::after-call").count(), 1, "{err}");
+    assert!(err.contains(":11:1]"), "{err}");
+    let lines: Vec<&str> = printed.lines().collect();
+    let at = |l: &str| lines.iter().position(|x| *x == l).unwrap();
+    // `G0 X2` as written, with no G90 put before it; `G0 X5` and `G0 X3` in G90.
+    assert_eq!(lines[at("G0 X2") - 1], "o200 call [1]", "{printed}");
+    for (mv, within) in [("G0 X5", 3), ("G0 X3", 2)] {
+        let before = &lines[at(mv) - within..at(mv)];
+        assert!(before.iter().any(|l| l.contains("G90")), "{printed}");
+    }
 }

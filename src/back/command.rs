@@ -51,6 +51,14 @@ impl<W: Write> Emitter<W> {
         self.text(text);
         self.end_line(&comments, true)?;
         self.forget(cmd.clobbers);
+        if calls_program(text) {
+            // The controller returns from a subprogram or macro in the modes its body
+            // left (LinuxCNC and Fanuc keep modal state across M99): distance mode,
+            // units, plane, motion mode (a canned cycle, even), feed mode and feed are
+            // whatever the body set, so the next move states them all again.
+            self.modes = Modes::default();
+            return Ok(());
+        }
         // M82/M83 pass through; the next E move puts back the output's own mode.
         for w in text.split_whitespace() {
             if let Some(n) = w
@@ -310,6 +318,20 @@ struct Unsupported {
     keep_help: &'static str,
     /// The comment that takes the removed words' place.
     note: fn(&str) -> Comment,
+}
+
+/// Whether a command runs another program, whose body may change any mode: a
+/// subprogram call `M98 P<n>` (a RepRapFirmware macro file `M98 P"file.g"` too: the
+/// printed program cannot see what it leaves) or a macro call `G65 P<n>`.
+fn calls_program(text: &str) -> bool {
+    text.split_whitespace().any(|w| {
+        let code = |n: f64| crate::num::parse_decimal(&w[1..]) == Some(n);
+        match w.as_bytes()[0] {
+            b'M' | b'm' => code(98.0),
+            b'G' | b'g' => code(65.0),
+            _ => false,
+        }
+    })
 }
 
 /// Grbl has no subprograms: a call, return or body left in the IR.

@@ -26,7 +26,7 @@ mod printed;
 pub use printed::as_printed;
 mod track;
 
-pub use modal::{Dialect, Modal, MotionMode};
+pub use modal::{CycleSeries, Dialect, Modal, MotionMode};
 pub use track::{Step, Tracker};
 
 use nalgebra::{Point3, Unit, Vector3};

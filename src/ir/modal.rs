@@ -105,8 +105,31 @@ pub struct Modal {
     /// The canned cycles' retract mode: `G98` (true, to the initial level) or `G99` (to
     /// R). Modal across calls, as on the controller.
     pub retract_to_initial: bool,
+    /// The canned-cycle series in force (default: none), modal across calls as on the
+    /// controller: a body that leaves `G81` in force drills at the next bare `X`, and a
+    /// cycle line after the call continues its series.
+    pub cycle: CycleSeries,
     /// The dialect the program is read in (under `auto`, the one its header named).
     pub dialect: Dialect,
+}
+
+/// A canned-cycle series as the G-code frontend follows it: the cycle, its sticky words
+/// as written (program units and distance mode) and the initial level (IR frame, the Z
+/// before the series' first cycle).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct CycleSeries {
+    /// The cycle's G number while a series is in force.
+    pub code: Option<u32>,
+    /// R as written.
+    pub r: Option<f64>,
+    /// Z as written.
+    pub z: Option<f64>,
+    /// Q as written.
+    pub q: Option<f64>,
+    /// P as written.
+    pub p: Option<f64>,
+    /// The initial level.
+    pub initial: Option<f64>,
 }
 
 impl Modal {

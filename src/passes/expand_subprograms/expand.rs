@@ -408,20 +408,30 @@ impl<'a> Expander<'a> {
         Ok(())
     }
 
-    /// After a call from the main program: the lines after it were read in the modes
-    /// before it, so the body must leave those modes in force.
-    pub fn check_modes(&mut self, key: &Key, start: &Modal, end: &Modal, site: &Site) {
+    /// After a call from the main program: the lines after it that the frontend read
+    /// in the modes before it (`depends`) need the body to leave those modes in force.
+    /// (The moves it could not read, the distance or motion mode unknown after the call,
+    /// are read again in the modes the body left.)
+    pub fn check_modes(
+        &mut self,
+        key: &Key,
+        start: &Modal,
+        end: &Modal,
+        site: &Site,
+        depends: super::Depends,
+    ) {
         let mut changed = Vec::new();
-        if start.inch != end.inch {
+        let units = depends.units;
+        if units && start.inch != end.inch {
             changed.push(if end.inch { "G20 (inches)" } else { "G21 (mm)" });
         }
-        if start.relative != end.relative {
+        if depends.distance && start.relative != end.relative {
             changed.push(if end.relative { "G91" } else { "G90" });
         }
-        if start.relative_e != end.relative_e {
+        if units && start.relative_e != end.relative_e {
             changed.push(if end.relative_e { "M83" } else { "M82" });
         }
-        if start.feed_mode != end.feed_mode {
+        if units && start.feed_mode != end.feed_mode {
             changed.push(match end.feed_mode {
                 crate::ir::FeedMode::InverseTime => "G93",
                 crate::ir::FeedMode::PerMinute => "G94",
@@ -444,7 +454,7 @@ impl<'a> Expander<'a> {
                     key.name()
                 )),
             ));
-        } else if start.plane != end.plane {
+        } else if units && start.plane != end.plane {
             self.report(
                 site.point(
                     Diagnostic::warning(

@@ -18,6 +18,12 @@ pub(super) struct MainState {
     front_offsets: [f64; AXIS_COUNT],
     /// A call has been expanded: the frontend's positions may be less than known.
     after_call: bool,
+    /// The last call from the main program was expanded: the lines the frontend copied
+    /// because that call left their modes unknown are read in the modes its body left.
+    body_modes: bool,
+    /// The lines the frontend copied after a call this pass expands (their warning taken
+    /// back): each must be read again.
+    pub reread: std::collections::HashSet<u32>,
     /// A line of the program proper has been read (the header, where the frontend
     /// learns the dialect under `auto`, is over).
     started: bool,
@@ -30,6 +36,8 @@ impl MainState {
             state: start,
             front_offsets: [0.0; AXIS_COUNT],
             after_call: false,
+            body_modes: false,
+            reread: std::collections::HashSet::new(),
             started: false,
         }
     }
@@ -77,31 +85,49 @@ impl MainState {
     }
 
     /// A line the frontend passed through because a position was unknown after a call
-    /// (a relative move, an arc), lowered again now that the position is known; `None`
-    /// when it still cannot be lowered to moves alone.
-    fn relower(&self, block: &Block, lowering: &dyn Lowering) -> Option<(Block, Modal)> {
+    /// (a relative move, an arc), or because a call left its modes unknown (it has no
+    /// modes of its own then: it is read in the modes the body left), lowered again now
+    /// that they are known (no block for a line that only sets modes); `None` when it
+    /// still cannot be lowered to moves alone.
+    fn relower(&self, block: &Block, lowering: &dyn Lowering) -> Option<(Option<Block>, Modal)> {
         let BlockKind::Verbatim(v) = &block.kind else {
             return None;
         };
-        let m = v.modes?;
         if v.reason != crate::ir::VerbatimReason::Unevaluated {
             return None;
         }
         let mut state = self.state;
-        state.inch = m.inch;
-        state.relative = m.relative;
-        if crate::num::lexer::has_word(&v.text, 'E') {
-            state.relative_e = m.relative_e;
-        }
-        if let Some(p) = m.plane {
-            state.plane = p;
+        match v.modes {
+            Some(m) => {
+                state.inch = m.inch;
+                state.relative = m.relative;
+                if crate::num::lexer::has_word(&v.text, 'E') {
+                    state.relative_e = m.relative_e;
+                }
+                if let Some(p) = m.plane {
+                    state.plane = p;
+                }
+            }
+            None if self.body_modes => {}
+            None => return None,
         }
         let mut low = lowering.body(state);
         let (mut out, mut diags) = (Vec::new(), Vec::new());
         low.line(&v.text, block.span, &mut out, &mut diags);
-        let moves_only =
-            !out.is_empty() && out.iter().all(|b| matches!(b.kind, BlockKind::Motion(_)));
-        (diags.is_empty() && moves_only && out.len() == 1).then(|| (out.remove(0), low.state()))
+        if !diags.is_empty() || out.len() > 1 {
+            return None;
+        }
+        let Some(lowered) = out.pop() else {
+            return Some((None, low.state()));
+        };
+        let plain = match &lowered.kind {
+            BlockKind::Motion(_) | BlockKind::Comment | BlockKind::Dwell { .. } => true,
+            BlockKind::Command(c) => c.clobbers.is_empty(),
+            // A canned cycle the body left in force, drilled where the line says.
+            BlockKind::Verbatim(v) => v.ends_at().is_some() && v.modes.is_some(),
+            BlockKind::Offset(_) => false,
+        };
+        plain.then(|| (Some(lowered), low.state()))
     }
 
     /// Follows the blocks of a definition, which are left out of the output, as the
@@ -139,21 +165,45 @@ impl MainState {
     pub fn after_call(&mut self, end: Modal) {
         self.state = end;
         self.after_call = true;
+        self.body_modes = true;
     }
 
-    /// Updates the state with `block` and returns it completed.
+    /// A call from the main program passes through: the controller runs it, so the lines
+    /// after it stay as written.
+    pub fn opaque_call(&mut self) {
+        self.body_modes = false;
+        // Lines the frontend copied because the motion mode is unknown stay as written.
+        self.state.motion = MotionMode::None;
+    }
+
+    /// Updates the state with `block` and returns it completed (`None` for a line that
+    /// only set modes, read again).
     pub fn block(
         &mut self,
         mut block: Block,
         lowering: &dyn Lowering,
         diags: &mut Vec<Diagnostic>,
-    ) -> Block {
+    ) -> Option<Block> {
         self.follow_reading(&block);
-        if self.after_call
-            && let Some((lowered, state)) = self.relower(&block, lowering)
-        {
-            self.state = state;
-            return lowered;
+        if self.after_call {
+            if let Some((lowered, state)) = self.relower(&block, lowering) {
+                self.state = state;
+                return lowered;
+            }
+            if self.body_modes
+                && let BlockKind::Verbatim(v) = &block.kind
+                && self.reread.contains(&block.span.line)
+            {
+                diags.push(
+                    Diagnostic::error(
+                        "subprograms::modes",
+                        "this line is read in the distance or motion mode the subprogram called before it left, and cannot be read again here",
+                    )
+                    .at_bytes(block.span.line, &v.text, 0, v.text.trim_end().len())
+                    .with_label("depends on the modes the subprogram left")
+                    .with_help("write the distance and motion modes it moves in on the line (`G90 G1 X1`), or the words the mode the subprogram left needs (an arc's centre)"),
+                );
+            }
         }
         let corr: [f64; AXIS_COUNT] =
             std::array::from_fn(|i| self.front_offsets[i] - self.state.offsets[i]);
@@ -186,7 +236,7 @@ impl MainState {
             }
             BlockKind::Dwell { .. } | BlockKind::Comment => {}
         }
-        block
+        Some(block)
     }
 
     /// Completes a move from the state (known axes, G92 correction, modal feed) and

@@ -33,14 +33,22 @@
 //!   counted the same way) are counted before it is expanded, so a nest of large
 //!   repeat counts is refused at its call line without being built.
 //! - `subprograms::modes`: a subprogram called from the main program leaves units,
-//!   distance mode, extruder mode or feed mode different from those it was called in. The
-//!   frontend read the lines after the call in the old modes, so their meaning would be
-//!   wrong; end the subprogram in the modes it started in. Reported only when a line
-//!   after the call, before the next call, depends on those modes (a move, a G92, a
-//!   line passed through in its modes): `M98 P1 L3` followed by `M30` alone is fine,
-//!   whatever modes O1 leaves. (Calls inside bodies are
-//!   exact: the lines after them are lowered here, in the modes the call left.) A
-//!   different plane is a warning.
+//!   extruder mode or feed mode different from those it was called in. The frontend read
+//!   the lines after the call in the old ones, so their meaning would be wrong; end the
+//!   subprogram in the modes it started in. Reported only when a line after the call,
+//!   before the next call, depends on those modes (a move, a G92, a line passed through
+//!   in its modes): `M98 P1 L3` followed by `M30` alone is fine, whatever modes O1
+//!   leaves. (Calls inside bodies are exact: the lines after them are lowered here, in
+//!   the modes the call left.) A different plane is a warning. The distance and motion
+//!   modes a body leaves are followed instead, as LinuxCNC and Fanuc keep them after
+//!   `M99`: the frontend copies the lines after a call that move (or set modes) before
+//!   restating both G90/G91 and G0/G1/G2/G3 (or a cycle), and this pass reads them
+//!   again in the modes the body left (a bare `X5` after a G91 body moves 5 on; after a
+//!   body that left a canned cycle it drills, the series going on, with its initial
+//!   level, across the call). A line it cannot read again is this error at the line (a
+//!   bare `X5` after a body that left `G2` is an arc without a centre). A G91 body
+//!   followed by a command with coordinates (`G28 X0`) before any move is this error at
+//!   the call.
 //! - `subprograms::no-m99`: a Fanuc subprogram runs to the end of the file.
 //! - `subprograms::return`: `o<n> return` (an early return) cannot be inlined.
 //!
@@ -207,6 +215,9 @@ pub struct ExpandSubprograms {
     main: MainState,
     /// Set at the first block that has to do with subprograms.
     buffering: bool,
+    /// The last call from the main program is one this pass expands: the lines the
+    /// frontend copied after it (warned [`AFTER_CALL`]) are read again here.
+    expanding: bool,
     buffer: Vec<Block>,
 }
 
@@ -231,6 +242,7 @@ impl ExpandSubprograms {
             lowering,
             options,
             buffering: false,
+            expanding: false,
             buffer: Vec::new(),
         })
     }
@@ -245,8 +257,9 @@ impl ExpandSubprograms {
         if self.buffering {
             self.buffer.push(block);
         } else {
-            let b = self.main.block(block, &*self.lowering, out.diags);
-            out.push(b);
+            if let Some(b) = self.main.block(block, &*self.lowering, out.diags) {
+                out.push(b);
+            }
         }
     }
 }
@@ -275,9 +288,46 @@ fn take_back_notices(blocks: &[Block], diags: &mut Vec<Diagnostic>) {
     });
 }
 
+/// The frontend's warning on a line it copied after a call because the call left its
+/// distance or motion mode unknown: true without this pass, taken back on the lines after
+/// a call it expands (it reads them again in the modes the body left).
+const AFTER_CALL: &str = "gcode::after-call";
+
+impl ExpandSubprograms {
+    /// Takes back the frontend's [`AFTER_CALL`] warnings on the lines of `blocks` that
+    /// follow a call this pass expands, and remembers those lines: one it cannot read
+    /// again is an error then.
+    fn take_back_after_call(&mut self, blocks: &[Block], diags: &mut Vec<Diagnostic>) {
+        let mut lines = Vec::new();
+        for b in blocks {
+            if subprogram_related(b) {
+                match main_call(b, &self.options, &*self.lowering) {
+                    Some((Call::Expand { .. }, _)) => self.expanding = true,
+                    Some(_) => self.expanding = false,
+                    None => {}
+                }
+            } else if self.expanding && matches!(b.kind, BlockKind::Verbatim(_)) {
+                lines.push(b.span.line);
+            }
+        }
+        if lines.is_empty() {
+            return;
+        }
+        diags.retain(|d| {
+            let line = d.location.as_ref().map(|l| l.line);
+            let taken = d.code == AFTER_CALL && line.is_some_and(|l| lines.contains(&l));
+            if let Some(l) = line.filter(|_| taken) {
+                self.main.reread.insert(l);
+            }
+            !taken
+        });
+    }
+}
+
 impl Pass for ExpandSubprograms {
     fn run(&mut self, blocks: &mut Vec<Block>, out: &mut Output<'_>) {
         take_back_notices(blocks, out.diags);
+        self.take_back_after_call(blocks, out.diags);
         for block in blocks.drain(..) {
             self.block(block, out);
         }
@@ -338,48 +388,76 @@ fn replay(
                 let mut stack = Vec::new();
                 match ex.call(&key, count, start, 1, &mut stack, &site, &mut expanded) {
                     Ok(end) => {
-                        if read_in_modes(blocks, owner, i, ex) {
-                            ex.check_modes(&key, &start, &end, &site);
-                        }
+                        let depends = read_in_modes(blocks, owner, i, ex);
+                        ex.check_modes(&key, &start, &end, &site, depends);
                         main.after_call(end);
                     }
-                    Err(()) => expanded.push(block),
+                    Err(()) => {
+                        main.opaque_call();
+                        expanded.push(block);
+                    }
                 }
             }
             Some((Call::Opaque { warning, reach }, _)) => {
                 ex.report(warning);
                 ex.reached.insert(reach);
-                expanded.push(main.block(block, ex.lowering, &mut ex.diags));
+                main.opaque_call();
+                expanded.extend(main.block(block, ex.lowering, &mut ex.diags));
             }
             Some((Call::Bad(d), _)) => {
                 ex.report(d);
                 expanded.push(block);
             }
-            None => expanded.push(main.block(block, ex.lowering, &mut ex.diags)),
+            None => expanded.extend(main.block(block, ex.lowering, &mut ex.diags)),
         }
     }
     (expanded, def_at)
 }
 
-/// Whether a block of the main program from `blocks[from]` up to its next call (or its
-/// end) depends on the modes the frontend read it in: a move, a G92, a line it passed
-/// through with the modes it was written in (parameter assignments aside), a command
-/// with coordinates. Only then does a body that changed modes break the lines after
-/// its call (`M98 P1` followed by `M30` alone does not).
-fn read_in_modes(blocks: &[Block], owner: &[Option<Key>], from: usize, ex: &Expander<'_>) -> bool {
+/// What the lines of the main program after a call (from `blocks[from]` up to its next
+/// call, or its end) take from the modes the frontend read them in.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Depends {
+    /// A line depends on the units, the extruder or the feed mode: a move, a G92, a line
+    /// passed through with the modes it was written in (parameter assignments aside), a
+    /// command with coordinates.
+    pub units: bool,
+    /// A command with coordinates (`G28 X0`) before the first move depends on the
+    /// distance mode. (The frontend copies the moves that do not restate the distance
+    /// and motion modes after a call with no modes of their own, and this pass reads them
+    /// again in the modes the body left. A line with parameters or expressions keeps the
+    /// modes the frontend read it in: not checked.)
+    pub distance: bool,
+}
+
+/// What the lines after a call take from the modes the frontend read them in: only then
+/// does a body that changed modes break them (`M98 P1` followed by `M30` alone does not).
+fn read_in_modes(
+    blocks: &[Block],
+    owner: &[Option<Key>],
+    from: usize,
+    ex: &Expander<'_>,
+) -> Depends {
+    let mut d = Depends::default();
+    let mut moved = false;
     for (block, own) in blocks.iter().zip(owner).skip(from) {
         if own.is_some() || main_call(block, ex.options, ex.lowering).is_some() {
-            return false;
+            break;
         }
-        let depends = match &block.kind {
-            BlockKind::Motion(_) | BlockKind::Offset(_) => true,
-            BlockKind::Command(c) => c.modes.is_some(),
-            BlockKind::Verbatim(v) => v.modes.is_some() && !main::only_assignments(&v.text),
-            BlockKind::Dwell { .. } | BlockKind::Comment => false,
+        let (units, distance) = match &block.kind {
+            BlockKind::Motion(_) => {
+                moved = true;
+                (true, false)
+            }
+            BlockKind::Offset(_) => (true, false),
+            BlockKind::Command(c) => (c.modes.is_some(), c.modes.is_some()),
+            BlockKind::Verbatim(v) => {
+                (v.modes.is_some() && !main::only_assignments(&v.text), false)
+            }
+            BlockKind::Dwell { .. } | BlockKind::Comment => (false, false),
         };
-        if depends {
-            return true;
-        }
+        d.units |= units;
+        d.distance |= distance && !moved;
     }
-    false
+    d
 }

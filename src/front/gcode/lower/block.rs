@@ -120,6 +120,19 @@ impl Lowerer {
         if self.resolve(&mut parts, diags).is_none() {
             return;
         }
+        if self.after_call != 0
+            && let Some(placement) = self.read_after_call(&parts)
+        {
+            self.program_started = true;
+            diags.push(after_call_warning(text, line_no));
+            let clobbers = if parts.named.is_empty() {
+                AxisSet::EMPTY
+            } else {
+                AxisSet::ALL
+            };
+            out.push(self.verbatim(text, span, VerbatimReason::Unevaluated, clobbers, placement));
+            return;
+        }
         let first = out.len();
         if self.lower_parts(&parts, out, diags).is_none() {
             return;
@@ -204,6 +217,39 @@ impl Lowerer {
         p.feed_written = self.apply_feed(text, line_no, &p.slots, &p.fx, diags)?;
         p.command_words = command_words(p, &sorted.rest);
         Some(())
+    }
+
+    /// After a call the frontend does not expand, the distance and motion modes are
+    /// whatever the subprogram left (LinuxCNC and Fanuc keep modal state across `M99`).
+    /// Clears the modes the line restates; `Some` when the line must be copied as
+    /// written: a move while one of them is still unknown, or a line that sets modes
+    /// while the distance mode is. The controller reads it in the modes the body left,
+    /// and `expand-subprograms`, which knows them, reads it again. It carries the modes
+    /// it was written in only once the distance mode is known again (the backend then
+    /// puts them first). G92, dwells and commands with axis words are lowered as before.
+    fn read_after_call(&mut self, p: &Parts<'_, '_>) -> Option<Placement> {
+        use super::after_call::{DISTANCE, MOTION};
+        if p.fx.g_list.iter().any(|c| matches!(c, (90 | 91, 0))) {
+            self.after_call &= !DISTANCE;
+        }
+        if p.fx.motion.is_some() || p.fx.unsupported {
+            self.after_call &= !MOTION;
+        }
+        let call = p.m_list.iter().any(|c| matches!(c, (98 | 99, 0)));
+        if self.after_call == 0 || call || p.fx.offset.is_some() || p.fx.dwell || p.fx.axis_user {
+            return None;
+        }
+        let distance_known = self.after_call & DISTANCE == 0;
+        let copied = if p.named.is_empty() {
+            !p.fx.g_list.is_empty() && !distance_known
+        } else {
+            true
+        };
+        copied.then_some(if distance_known {
+            Placement::TopLevel { keeps_modes: false }
+        } else {
+            Placement::Inside
+        })
     }
 
     /// Applies the block's G codes to the modal state, in RS274 execution order, and
@@ -485,6 +531,21 @@ impl Lowerer {
         }
     }
 }
+
+/// The warning on a line copied as written after a call: its modes are the body's.
+fn after_call_warning(text: &str, line_no: u32) -> Diagnostic {
+    Diagnostic::warning(
+        AFTER_CALL,
+        "this line moves in the distance or motion mode the subprogram called before it left",
+    )
+    .at_bytes(line_no, text, 0, text.trim_end().len())
+    .with_label("copied as written")
+    .with_help("the controller reads it in the modes the subprogram returned in; write G90 or G91 and G0 or G1 on it (or before it) to have it read here, or let expand-subprograms read it")
+}
+
+/// The code of [`after_call_warning`]: `expand-subprograms` takes it back on the lines it
+/// reads again.
+const AFTER_CALL: &str = "gcode::after-call";
 
 /// Sorts a block's words by letter; `None` once an error is reported (a G or M word that
 /// is not a code, a letter given twice).

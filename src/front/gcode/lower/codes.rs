@@ -182,6 +182,11 @@ impl Lowerer {
         self.pos.forget(clob);
         if call && !self.calls_inline {
             self.feed = None;
+            // A subprogram of this file (not a RepRapFirmware macro file `P"file.g"`)
+            // returns in the modes its body left.
+            if !text.contains('"') {
+                self.after_call = super::after_call::ALL;
+            }
         }
         let modes = if call {
             // The modes the body starts in (E: M83 alone, not G91).

@@ -8,24 +8,17 @@ use super::{Lowerer, Placement};
 use crate::diag::Diagnostic;
 use crate::ir::cycle::{CannedCycle, CycleLine, CycleProblem};
 use crate::ir::{
-    Axis, AxisSet, Block, BlockKind, Dialect, Feed, FeedMode, Joints, Plane, Span, VerbatimReason,
+    Axis, AxisSet, Block, BlockKind, CycleSeries, Dialect, Feed, FeedMode, Joints, Plane, Span,
+    VerbatimReason,
 };
 
 /// The canned cycle in force and its sticky words (LinuxCNC's "sticky" R, Z, Q, P: given
 /// once, kept by the lines after until the series ends).
 #[derive(Debug, Clone, Copy)]
 pub(super) struct CycleModal {
-    /// The cycle's G number while a series is in force.
-    code: Option<u32>,
-    /// R and Z as written (program units and distance mode).
-    r: Option<f64>,
-    z: Option<f64>,
-    /// Q as written.
-    q: Option<f64>,
-    /// P as written.
-    p: Option<f64>,
-    /// The initial level (IR frame): the Z before the first cycle of the series.
-    initial: Option<f64>,
+    /// The cycle, its sticky words as written (program units and distance mode) and the
+    /// initial level (IR frame): the part a subprogram body carries across its call.
+    series: CycleSeries,
     /// `G98` (true) or `G99`: the retract mode, modal across series.
     to_initial: bool,
 }
@@ -33,12 +26,7 @@ pub(super) struct CycleModal {
 impl Default for CycleModal {
     fn default() -> Self {
         CycleModal {
-            code: None,
-            r: None,
-            z: None,
-            q: None,
-            p: None,
-            initial: None,
+            series: CycleSeries::default(),
             // Fanuc's power-on mode (the dialect sets LinuxCNC's G99); CAM posts write
             // G98 or G99 with their cycles.
             to_initial: true,
@@ -50,6 +38,16 @@ impl CycleModal {
     /// `G98` (true) or `G99`.
     pub(super) fn retract_to_initial(&self) -> bool {
         self.to_initial
+    }
+
+    /// The series in force, for the state a subprogram body leaves.
+    pub(super) fn series(&self) -> CycleSeries {
+        self.series
+    }
+
+    /// Continues the series `s` (the caller's into a body, the body's after a call).
+    pub(super) fn set_series(&mut self, s: CycleSeries) {
+        self.series = s;
     }
 
     /// Sets the retract mode (the dialect's start, or the caller's across a call).
@@ -102,7 +100,7 @@ impl Lowerer {
             match code {
                 (98, 0) => self.cycle.to_initial = true,
                 (99, 0) => self.cycle.to_initial = false,
-                c if is_cycle(c) => self.cycle.code = Some(c.0),
+                c if is_cycle(c) => self.cycle.series.code = Some(c.0),
                 (80, 0) | (0..=3 | 5 | 33 | 38, _) => {
                     // The series ends: its initial level and sticky words go with it.
                     self.cycle = CycleModal {
@@ -117,7 +115,7 @@ impl Lowerer {
 
     /// Whether a canned cycle is the motion mode in force.
     pub(super) fn in_cycle(&self) -> bool {
-        self.cycle.code.is_some()
+        self.cycle.series.code.is_some()
     }
 
     /// A line with axis words while a cycle is in force: the line as written, with the
@@ -176,7 +174,7 @@ impl Lowerer {
         slots: &Slots<'_, '_>,
     ) -> Result<CannedCycle, CycleProblem> {
         let whole = (0, text.len());
-        let code = self.cycle.code.unwrap_or(81);
+        let code = self.cycle.series.code.unwrap_or(81);
         if code == 76 {
             return Err(problem(
                 "G76 is a boring cycle that orients the spindle (Fanuc) or a lathe threading cycle (LinuxCNC)",
@@ -192,10 +190,10 @@ impl Lowerer {
             ));
         }
         for (letter, slot) in [
-            ('R', &mut self.cycle.r),
-            ('Z', &mut self.cycle.z),
-            ('Q', &mut self.cycle.q),
-            ('P', &mut self.cycle.p),
+            ('R', &mut self.cycle.series.r),
+            ('Z', &mut self.cycle.series.z),
+            ('Q', &mut self.cycle.series.q),
+            ('P', &mut self.cycle.series.p),
         ] {
             if let Some(w) = slots.get(letter) {
                 *slot = Some(w.value);
@@ -204,8 +202,12 @@ impl Lowerer {
         let repeats = self.repeats(slots)?;
         let scale = self.unit(Axis::Z);
         let [x0, y0, z0] = self.cycle_start(slots, whole)?;
-        let (Some(r), Some(z)) = (self.cycle.r, self.cycle.z) else {
-            let missing = if self.cycle.r.is_none() { "R" } else { "Z" };
+        let (Some(r), Some(z)) = (self.cycle.series.r, self.cycle.series.z) else {
+            let missing = if self.cycle.series.r.is_none() {
+                "R"
+            } else {
+                "Z"
+            };
             return Err(problem(
                 format!("the canned cycle has no {missing} word"),
                 "write R (the retract plane) and Z (the hole bottom) on the first line of the cycle",
@@ -213,7 +215,7 @@ impl Lowerer {
             ));
         };
         // LinuxCNC `cycle_il`: the level before the first cycle of the series.
-        let initial = *self.cycle.initial.get_or_insert(z0);
+        let initial = *self.cycle.series.initial.get_or_insert(z0);
         let off_z = self.offsets[Axis::Z.index()];
         let (r_ir, bottom) = if self.relative {
             // G91: R from the initial level, Z from R (LinuxCNC's and Fanuc's rule).
@@ -357,7 +359,7 @@ impl Lowerer {
         whole: (usize, usize),
     ) -> Result<(Option<f64>, Option<f64>, Feed), CycleProblem> {
         let at = |l: char| slots.get(l).map_or(whole, |w| (w.start, w.end));
-        let q = match (code, self.cycle.q) {
+        let q = match (code, self.cycle.series.q) {
             (73 | 83, Some(q)) if q > 0.0 => Some(q * self.unit(Axis::Z)),
             (73 | 83, _) => {
                 return Err(problem(
@@ -368,7 +370,7 @@ impl Lowerer {
             }
             _ => None,
         };
-        let dwell = match (code, self.cycle.p) {
+        let dwell = match (code, self.cycle.series.p) {
             (82 | 86 | 88 | 89 | 74 | 84, Some(p)) if p >= 0.0 => Some(self.p_seconds(p)),
             (82 | 86 | 88 | 89, _) => {
                 return Err(problem(

@@ -33,6 +33,7 @@ impl Lowerer {
         let top_level = self.oword_stack.is_empty();
         // Nothing may be inserted between the lines of a control-flow construct.
         let placement = Placement::Inside;
+        self.follow_sub(&label, top_level, &kw);
         match kw.as_str() {
             "sub" | "if" | "repeat" | "do" => self.oword_stack.push((label, kw.clone())),
             "while" => {
@@ -84,9 +85,38 @@ impl Lowerer {
             }
             if !self.calls_inline {
                 self.feed = None;
+                let label = oword_call(text).and_then(|c| c.label);
+                // Modes an earlier call left unknown stay so until restated.
+                self.after_call |= self
+                    .sub_modes
+                    .iter()
+                    .find(|(l, _)| Some(l) == label.as_ref())
+                    .map_or(super::after_call::ALL, |&(_, bits)| bits);
             }
         }
         out.push(block);
+    }
+
+    /// Follows the o-word subroutines defined at the top level: which of the modes a
+    /// call leaves unknown ([`super::after_call`]) their lines may change. A call inside
+    /// one may change any.
+    fn follow_sub(&mut self, label: &str, top_level: bool, kw: &str) {
+        match kw {
+            "sub" if top_level => {
+                self.reading_sub = normal_label(label).map(|l| (l, 0));
+            }
+            "endsub" if self.oword_stack.len() == 1 => {
+                if let Some(sub) = self.reading_sub.take() {
+                    self.sub_modes.push(sub);
+                }
+            }
+            "call" => {
+                if let Some((_, bits)) = &mut self.reading_sub {
+                    *bits = super::after_call::ALL;
+                }
+            }
+            _ => {}
+        }
     }
 
     /// Decides whether a line is outside the plain block grammar; reports why.
@@ -443,6 +473,55 @@ pub(crate) struct OwordCall {
     pub at: (usize, usize),
 }
 
+/// An o-word label as calls and definitions name it: a number without leading zeros,
+/// or a `<name>` in lower case; `None` for an expression.
+fn normal_label(raw: &str) -> Option<String> {
+    if let Some(digits) = raw
+        .strip_prefix(['+'])
+        .or(Some(raw))
+        .filter(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
+    {
+        Some(digits.trim_start_matches('0').to_string())
+            .map(|d| if d.is_empty() { "0".to_string() } else { d })
+    } else if raw.starts_with('<') && raw.ends_with('>') && !raw.contains(['[', '#']) {
+        Some(raw.to_ascii_lowercase())
+    } else {
+        None
+    }
+}
+
+/// The modes a line of a subroutine may change, as [`super::after_call`] bits: G90/G91,
+/// a motion code (G0-G3, G33, G38.x, the cycles, G80), and anything from a `G` with an
+/// expression, a macro call (`G65`) or a subprogram call (`M98`).
+pub(super) fn modes_set(toks: &[Spanned<'_>]) -> u8 {
+    use super::after_call::{ALL, DISTANCE, MOTION};
+    let mut bits = 0;
+    for &(_, t, _) in toks {
+        let (letter, number) = match t {
+            Tok::Word(w) => (w.as_bytes()[0].to_ascii_uppercase(), w[1..].trim_start()),
+            Tok::Letter(w) if w.eq_ignore_ascii_case("G") => return ALL,
+            _ => continue,
+        };
+        let n = crate::num::parse_decimal(number);
+        bits |= match (letter, n) {
+            (b'G', Some(n)) if n == 90.0 || n == 91.0 => DISTANCE,
+            (b'G', Some(65.0)) => ALL,
+            (b'G', Some(n))
+                if (n <= 3.0 && n.fract() == 0.0)
+                    || (33.0..34.0).contains(&n)
+                    || (38.0..39.0).contains(&n)
+                    || (73.0..=89.0).contains(&n) =>
+            {
+                MOTION
+            }
+            (b'G', None) => ALL,
+            (b'M', Some(98.0)) => ALL,
+            _ => 0,
+        };
+    }
+    bits
+}
+
 /// Reads an o-word call line; `None` when the line is not one.
 pub(crate) fn oword_call(text: &str) -> Option<OwordCall> {
     let toks: Vec<Spanned<'_>> = crate::front::gcode::lexer::tokens(text).collect();
@@ -454,18 +533,7 @@ pub(crate) fn oword_call(text: &str) -> Option<OwordCall> {
         .iter()
         .position(|t| matches!(t.1, Tok::Ident(w) if w.eq_ignore_ascii_case("call")))?;
     let raw = text[toks[0].0 + 1..toks[kw_at].0].trim();
-    let label = if let Some(digits) = raw
-        .strip_prefix(['+'])
-        .or(Some(raw))
-        .filter(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
-    {
-        Some(digits.trim_start_matches('0').to_string())
-            .map(|d| if d.is_empty() { "0".to_string() } else { d })
-    } else if raw.starts_with('<') && raw.ends_with('>') && !raw.contains(['[', '#']) {
-        Some(raw.to_ascii_lowercase())
-    } else {
-        None
-    };
+    let label = normal_label(raw);
     let args = toks[kw_at + 1..].iter().any(|t| {
         !matches!(
             t.1,

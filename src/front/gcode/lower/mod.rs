@@ -67,6 +67,13 @@ pub(crate) struct Lowerer {
     /// Lowering a subprogram body for `expand-subprograms`: calls (M98, simple o-calls)
     /// are expanded by the caller, so they change no position or feed here.
     calls_inline: bool,
+    /// The modes a subprogram called from here may have changed, not restated since
+    /// ([`after_call`] bits): lines that depend on them are copied as written.
+    after_call: u8,
+    /// The modes each o-word subroutine read so far may change ([`after_call`] bits), by
+    /// label as [`oword_call`] spells it; the one being read, with its label.
+    sub_modes: Vec<(String, u8)>,
+    reading_sub: Option<(String, u8)>,
     /// The dialect in force: the option's, or under `auto` the one the header names
     /// (until the program starts).
     dialect: Dialect,
@@ -107,6 +114,9 @@ impl Lowerer {
             saw_text: false,
             program_started: false,
             calls_inline: false,
+            after_call: 0,
+            sub_modes: Vec::new(),
+            reading_sub: None,
             dialect: Dialect::Auto,
             cycle: cycle::CycleModal::default(),
         };
@@ -145,6 +155,7 @@ impl Lowerer {
             offsets: self.offsets,
             suspended: self.suspended,
             retract_to_initial: self.cycle.retract_to_initial(),
+            cycle: self.cycle.series(),
             dialect: self.dialect,
         }
     }
@@ -163,6 +174,7 @@ impl Lowerer {
         self.offsets = s.offsets;
         self.suspended = s.suspended;
         self.cycle.set_retract_to_initial(s.retract_to_initial);
+        self.cycle.set_series(s.cycle);
         self.dialect = s.dialect;
     }
 
@@ -355,6 +367,9 @@ impl Lowerer {
             return;
         }
         if !self.oword_stack.is_empty() {
+            if let Some((_, bits)) = &mut self.reading_sub {
+                *bits |= dialect::modes_set(toks);
+            }
             out.push(self.pass_through(text, span, VerbatimReason::ControlFlow));
             return;
         }
@@ -384,6 +399,16 @@ enum Placement {
     TopLevel { keeps_modes: bool },
     /// Inside a block (control flow, subprogram): nothing may be inserted before it.
     Inside,
+}
+
+/// The modes a subprogram may leave changed, as bits of [`Lowerer`]'s `after_call`.
+pub(super) mod after_call {
+    /// G90/G91.
+    pub const DISTANCE: u8 = 1;
+    /// The motion mode: G0-G3, or a canned cycle (G81 ...).
+    pub const MOTION: u8 = 2;
+    /// Both: what a call the frontend does not expand leaves unknown.
+    pub const ALL: u8 = DISTANCE | MOTION;
 }
 
 /// Classification of a line outside the plain grammar.
