@@ -441,6 +441,63 @@ fn feasible(m: &Machine, start: [f64; 2], steps: &[(bool, f64, f64)]) -> Vec<ClP
     out
 }
 
+/// A rapid to a pose 0.0095° from head-head-ab's singular direction (inside the cone, A
+/// free and held at -109), then a cut whose nearer branch from the held A lies outside
+/// A's limits (-183.8) and whose other one is 105° away: the swing is made at the rapid,
+/// as G0 pieces with the tip still, and the cut runs flip-free at its programmed time,
+/// as the readback of the printed program (verification on) finds (the case proptest
+/// found; before, `ik::flip` though a flip-free choice existed).
+#[test]
+fn a_rapid_to_a_held_singular_pose_swings_there_for_the_cut_after_it() {
+    let m = machine("head-head-ab");
+    let steps = [
+        (true, 0.0, 2.552948493085217),
+        (true, 1.9296344579453435, 3.6512010865529168),
+        (false, 0.0, -3.8941335664948533),
+    ];
+    let points = feasible(&m, [0.0, 0.0], &steps);
+    let mut p = Pipeline::builder()
+        .preset_name("head-head-ab")
+        .expect("preset")
+        .verify(true)
+        .build()
+        .expect("pipeline");
+    let mut out = Vec::new();
+    let mut diags = Vec::new();
+    p.run_source(
+        Source::Cl,
+        cl_text(&points).as_bytes(),
+        &mut out,
+        &mut |d| diags.push(d),
+    )
+    .expect("writes");
+    let text = String::from_utf8(out).expect("utf-8");
+    assert!(!diags.iter().any(Diagnostic::is_error), "{diags:?}");
+    let printed = read_printed(&text, letters(&m));
+    // The swing: G0 pieces of at most 1°, the tip still.
+    let swing: Vec<_> = printed
+        .windows(2)
+        .filter(|w| (w[1].j[3] - w[0].j[3]).abs() > 1e-6)
+        .collect();
+    assert!(swing.len() > 100, "{text}");
+    for w in &swing {
+        assert!(w[1].rapid, "line {}: A turns in a cutting block", w[1].line);
+        assert!((w[1].j[3] - w[0].j[3]).abs() <= 1.0 + 1e-6);
+        assert!((fk(&m, &w[1].j).0 - fk(&m, &w[0].j).0).norm() < 1e-3);
+    }
+    // Every CL point reached: the held one within the singularity cone (0.01°), the cut's
+    // end exactly.
+    let mut k = 0;
+    for q in &printed {
+        let (tip, axis) = fk(&m, &q.j);
+        if k < points.len() && (tip - points[k].tip).norm() < 1e-3 {
+            assert!(axis.angle(&points[k].axis).to_degrees() < 0.01, "point {k}");
+            k += 1;
+        }
+    }
+    assert_eq!(k, points.len(), "{text}");
+}
+
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(64))]
 

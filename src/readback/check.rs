@@ -92,6 +92,8 @@ pub struct Checker {
     /// How far along the segment (its path parameter, 0 to 1) the last printed move of
     /// it ended.
     seg_t: f64,
+    /// A feed move of the current segment was printed.
+    seg_fed: bool,
     /// An extrusion start waiting for the printed path to pass this share of its
     /// segment (the E before it restores a retraction).
     deferred: Option<f64>,
@@ -145,6 +147,7 @@ impl Checker {
             seg_start: 0.0,
             seg_first: None,
             seg_t: 0.0,
+            seg_fed: false,
             deferred: None,
             blind: false,
             extruding: false,
@@ -348,7 +351,21 @@ impl Checker {
         };
         self.seg[0] += m.seconds;
         self.seg[3] += length;
-        if target.feed > 0.0 && !target.rapid {
+        self.seg_fed |= !m.rapid;
+        if target.feed > 0.0
+            && !target.rapid
+            && m.rapid
+            && !self.seg_fed
+            && distance(&start.0, &end.0) <= self.tol.hit_tip()
+        {
+            // A rapid that turns the tool with the tip still (within the printed digits)
+            // before a cutting segment's first feed move (the free rotary's swing `ik`
+            // makes at the rapid before a cut leaving a singular pose): the controller's
+            // G0 time, which the programmed feed does not govern. Inside the cut, a tip
+            // standing still is a time error (it dwells in the material).
+            self.seg[1] += m.seconds;
+            self.seg[2] += m.seconds;
+        } else if target.feed > 0.0 && !target.rapid {
             let feed = target.feed / 60.0;
             let capped = feed.min(self.kin.speed_cap(&m.from, &m.to));
             let cap_time = self.cap_time(m);
@@ -446,6 +463,7 @@ impl Checker {
         };
         let [printed, fast, slow, length, material] = std::mem::take(&mut self.seg);
         self.seg_t = 0.0;
+        self.seg_fed = false;
         if self.deferred.take().is_some() {
             self.extrusion_start(line, v.line);
         }

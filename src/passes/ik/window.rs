@@ -130,6 +130,9 @@ struct From {
     axis: Option<Unit<Vector3<f64>>>,
     score: Option<Score>,
     cell: Option<u8>,
+    /// The rotary a rapid left held at a singular pose: the swing the next cut needs of it
+    /// is made at that rapid (`Ik::spread_swing`), so it is no flip of the cut.
+    swings_at_rapid: Option<usize>,
 }
 
 impl Ik {
@@ -153,6 +156,7 @@ impl Ik {
                         axis: Some(p.axis),
                         score: Some(cell.score),
                         cell: Some(c as u8),
+                        swings_at_rapid: cell.choice.held.filter(|_| !p.cutting),
                     })
                 })
             }
@@ -162,6 +166,7 @@ impl Ik {
                     axis: self.committed_axis(),
                     score: None,
                     cell: None,
+                    swings_at_rapid: self.held.filter(|_| self.held_rapid.is_some()),
                 }),
                 None,
             ],
@@ -182,7 +187,11 @@ impl Ik {
                 self.offer(&mut cells, slot, choice, walked, from);
                 continue;
             }
-            for (k, mut choice) in self.branches(&solutions, cutting, walked, from.angles) {
+            let mut actual = from.angles;
+            if let Some(k) = from.swings_at_rapid {
+                actual[k] = None;
+            }
+            for (k, mut choice) in self.branches(&solutions, cutting, walked, actual) {
                 // A singular pose with the free rotary unknown before it (the program's
                 // first): its value is as arbitrary as a held one, and the move leaving
                 // the singularity treats it so (`Ik::spread_swing`).
