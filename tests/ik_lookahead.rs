@@ -109,9 +109,15 @@ struct Run {
 }
 
 fn compile(preset: &str, cl: &str) -> Run {
+    compile_with(preset, cl, false)
+}
+
+/// [`compile`], with the readback of the printed program on when `readback` says.
+fn compile_with(preset: &str, cl: &str, readback: bool) -> Run {
     let mut p = Pipeline::builder()
         .preset_name(preset)
         .expect("preset")
+        .verify(readback)
         .build()
         .expect("pipeline");
     let machine = p.preset().machine.clone().expect("a 5-axis preset");
@@ -456,24 +462,10 @@ fn a_rapid_to_a_held_singular_pose_swings_there_for_the_cut_after_it() {
         (false, 0.0, -3.8941335664948533),
     ];
     let points = feasible(&m, [0.0, 0.0], &steps);
-    let mut p = Pipeline::builder()
-        .preset_name("head-head-ab")
-        .expect("preset")
-        .verify(true)
-        .build()
-        .expect("pipeline");
-    let mut out = Vec::new();
-    let mut diags = Vec::new();
-    p.run_source(
-        Source::Cl,
-        cl_text(&points).as_bytes(),
-        &mut out,
-        &mut |d| diags.push(d),
-    )
-    .expect("writes");
-    let text = String::from_utf8(out).expect("utf-8");
-    assert!(!diags.iter().any(Diagnostic::is_error), "{diags:?}");
-    let printed = read_printed(&text, letters(&m));
+    let run = compile_with("head-head-ab", &cl_text(&points), true);
+    no_errors(&run);
+    let text = &run.text;
+    let printed = read_printed(text, letters(&m));
     // The swing: G0 pieces of at most 1°, the tip still.
     let swing: Vec<_> = printed
         .windows(2)

@@ -44,8 +44,26 @@ fn preset(valve_only: bool, center: [f64; 2], options: &[(&str, toml::Value)]) -
     p
 }
 
+/// Compiles `src` through `preset`; the run must have no error.
 fn compile(src: &str, preset: &Preset, timing: Option<Timing>) -> (String, Vec<Diagnostic>) {
-    let mut b = Pipeline::builder().preset(preset.clone());
+    run(src, preset, timing, false)
+}
+
+/// [`compile`] with the readback on: the printed text, read as the firmware reads it,
+/// must hold the tolerances (material per block within 1 %, valve leads within 1 ms).
+/// Only for whole polar presets: a valve-only preset prints XY that the readback would
+/// read as r and θ.
+fn compile_verified(src: &str, preset: &Preset) -> String {
+    run(src, preset, None, true).0
+}
+
+fn run(
+    src: &str,
+    preset: &Preset,
+    timing: Option<Timing>,
+    readback: bool,
+) -> (String, Vec<Diagnostic>) {
+    let mut b = Pipeline::builder().preset(preset.clone()).verify(readback);
     if let Some(t) = timing {
         b = b.timing(t);
     }
@@ -733,8 +751,7 @@ fn late_opens(items: &[Timed], open_delay: f64, close_delay: f64) -> usize {
 fn open_dwell_is_whole_milliseconds_up() {
     let src = include_str!("fixtures/polar/valve_dwell_short_run.gcode");
     let preset = preset(false, [90.0, 90.0], &[]);
-    assert!(preset.passes.iter().any(|s| s.name == "verify"));
-    let (out, diags) = compile(src, &preset, None);
+    let (out, diags) = run(src, &preset, None, true);
     assert!(
         codes(&diags).contains(&"valve-lookahead::dwell"),
         "{diags:?}"
@@ -753,8 +770,7 @@ fn open_dwell_is_whole_milliseconds_up() {
 fn open_wanted_just_before_a_piece_end_splits_there() {
     let src = include_str!("fixtures/polar/valve_open_before_a_tiny_extrusion.gcode");
     let preset = preset(false, [90.0, 90.0], &[]);
-    assert!(preset.passes.iter().any(|s| s.name == "verify"));
-    let (out, _) = compile(src, &preset, None);
+    let (out, _) = run(src, &preset, None, true);
     let items = timeline(&out, &polar(), Timing::ConstantVelocity, Flow::Screw);
     let opens: Vec<f64> = commands(&items)
         .into_iter()
@@ -770,29 +786,6 @@ fn open_wanted_just_before_a_piece_end_splits_there() {
             "run at {start} s, valve open at {open:?} s\n{out}"
         );
     }
-}
-
-/// Compiles `src` through `preset` with the readback verification on (material per block
-/// within 1 %, valve leads within 1 ms, as the firmware reads the printed text): the run
-/// must pass it.
-fn compile_verified(src: &str, preset: &Preset) -> String {
-    let mut pipeline = Pipeline::builder()
-        .preset(preset.clone())
-        .verify(true)
-        .build()
-        .expect("pipeline");
-    let mut out = Vec::new();
-    let mut diags = Vec::new();
-    let run = pipeline.run_gcode(src.as_bytes(), &mut out, &mut |d| diags.push(d));
-    let errors: Vec<_> = diags
-        .iter()
-        .filter(|d| d.severity == Severity::Error)
-        .collect();
-    assert!(
-        run.is_ok_and(|s| s.errors == 0) && errors.is_empty(),
-        "{errors:?}"
-    );
-    String::from_utf8(out).expect("utf8")
 }
 
 /// The least share of any extruding printed block's time during which the valve lets

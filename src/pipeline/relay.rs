@@ -134,6 +134,16 @@ struct WriterStage<'a> {
     tap: Option<verify::TapPoint>,
 }
 
+/// One stage of a [`Relay`].
+enum Step<'r, 'a> {
+    Lower(&'r Mutex<front::gcode::Lowering>),
+    Pass(&'r Mutex<PassStage<'a>>),
+    /// The backend prints the batch into its text.
+    Print,
+    /// The text goes to the writer (and the readback).
+    Output,
+}
+
 /// What a run reads: blocks from a frontend, or G-code lines whose lowering is a stage of
 /// its own, so that reading and lowering run on different threads.
 pub(super) enum Reading<'f> {
@@ -197,7 +207,7 @@ pub(super) struct Relay<'a> {
     spare_text: Mutex<Vec<Vec<u8>>>,
 }
 
-impl Relay<'_> {
+impl<'a> Relay<'a> {
     /// Runs the whole input through the stages on this thread and one more: this one
     /// reads the frontend whenever the schedule asks for input, both run whichever stage
     /// is due. `deliver` gets each written batch's diagnostics, in input order.
@@ -337,34 +347,23 @@ impl Relay<'_> {
     /// Runs stage `k` (a pass, or after the last pass the backend, then the output) on
     /// `batch` and hands the batch on.
     fn stage(&self, k: usize, mut batch: Batch, next: &mut Vec<Block>) {
-        let pass = match &self.lowering {
-            Some(lowering) if k == 0 => {
-                self.lower(lowering, &mut batch);
-                None
-            }
-            Some(_) => Some(k - 1),
-            None => Some(k),
-        };
-        match pass.map(|p| self.passes.get(p)) {
-            None => {}
-            Some(Some(stage)) => {
+        let mut more = Vec::new();
+        match self.step(k) {
+            Step::Lower(lowering) => self.lower(lowering, &mut batch),
+            Step::Pass(stage) => {
                 let mut stage = stage.lock().unwrap_or_else(|p| p.into_inner());
                 self.pass_stage(&mut stage, &mut batch, next);
+                more = self.cut(&mut batch);
             }
-            Some(None) if pass == Some(self.passes.len()) => {
+            Step::Print => {
                 let mut w = self.writer.lock().unwrap_or_else(|p| p.into_inner());
                 self.write(&mut w, &mut batch);
             }
-            Some(None) => {
+            Step::Output => {
                 let mut out = self.output.lock().unwrap_or_else(|p| p.into_inner());
                 self.output(&mut **out, &mut batch);
             }
         }
-        let more = if pass.is_some_and(|p| p < self.passes.len()) {
-            self.cut(&mut batch)
-        } else {
-            Vec::new()
-        };
         if let Some(mut done) = self.schedule.stage_done(k, batch, more) {
             done.text.clear();
             if let Ok(mut spare) = self.spare_text.lock()
@@ -382,6 +381,21 @@ impl Relay<'_> {
             {
                 spare.push(done.blocks);
             }
+        }
+    }
+
+    /// What stage `k` is: the lowering (when the run reads G-code lines), the passes, the
+    /// backend, the output.
+    fn step(&self, k: usize) -> Step<'_, 'a> {
+        let k = match &self.lowering {
+            Some(lowering) if k == 0 => return Step::Lower(lowering),
+            Some(_) => k - 1,
+            None => k,
+        };
+        match self.passes.get(k) {
+            Some(stage) => Step::Pass(stage),
+            None if k == self.passes.len() => Step::Print,
+            None => Step::Output,
         }
     }
 
