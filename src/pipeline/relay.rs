@@ -375,7 +375,7 @@ impl<'a> Relay<'a> {
             // A pass that cuts moves into many pieces (polar-ik, densify) grows a batch
             // far beyond what the frontend reads; a kept buffer goes back to that size so
             // that memory stays bounded by the batch size, not by the longest expansion.
-            done.blocks.shrink_to(BATCH);
+            done.blocks.shrink_to(2 * BATCH);
             if let Ok(mut spare) = self.spare.lock()
                 && spare.len() < SPARE_BATCHES
             {
@@ -452,7 +452,7 @@ impl<'a> Relay<'a> {
             self.max_repeats,
         );
         // The scratch buffer keeps the batch's size, as the spare buffers do.
-        next.shrink_to(BATCH);
+        next.shrink_to(2 * BATCH);
         if batch.end {
             // What the pass still holds goes on after this batch's blocks.
             finish_pass(

@@ -388,26 +388,43 @@ impl Verifier {
     }
 
     /// Takes printed bytes.
-    pub fn bytes(&mut self, mut buf: &[u8]) {
-        while let Some(nl) = buf.iter().position(|&b| b == b'\n') {
-            if self.partial.is_empty() {
-                self.take_line(&buf[..nl]);
-            } else {
-                let mut whole = std::mem::take(&mut self.partial);
-                whole.extend_from_slice(&buf[..nl]);
-                self.take_line(&whole);
-                whole.clear();
-                self.partial = whole;
+    pub fn bytes(&mut self, buf: &[u8]) {
+        let Some(last) = memchr::memrchr(b'\n', buf) else {
+            self.partial.extend_from_slice(buf);
+            return;
+        };
+        // The whole lines, the last without its newline.
+        let mut whole = &buf[..last];
+        if !self.partial.is_empty() {
+            let end = memchr::memchr(b'\n', whole).unwrap_or(whole.len());
+            let mut first = std::mem::take(&mut self.partial);
+            first.extend_from_slice(&whole[..end]);
+            self.take_line(&first);
+            first.clear();
+            self.partial = first;
+            whole = whole.get(end + 1..).unwrap_or_default();
+            if end == last {
+                self.partial.extend_from_slice(&buf[last + 1..]);
+                return;
             }
-            buf = &buf[nl + 1..];
         }
-        self.partial.extend_from_slice(buf);
+        // The backend prints UTF-8: one check for all the lines, not one a line.
+        match std::str::from_utf8(whole) {
+            Ok(text) => text.split('\n').for_each(|line| self.take_text(line)),
+            Err(_) => whole
+                .split(|&b| b == b'\n')
+                .for_each(|line| self.take_line(line)),
+        }
+        self.partial.extend_from_slice(&buf[last + 1..]);
     }
 
     fn take_line(&mut self, bytes: &[u8]) {
+        self.take_text(&String::from_utf8_lossy(bytes));
+    }
+
+    fn take_text(&mut self, text: &str) {
         self.line += 1;
-        let text = String::from_utf8_lossy(bytes);
-        if let Some(e) = self.reader.line(&text) {
+        if let Some(e) = self.reader.line(text) {
             self.checker.event(&e, self.line);
         }
     }
@@ -454,10 +471,9 @@ mod tests {
         }
     }
 
-    /// A cut printed at half its programmed feed, and a printed point 0.02 mm off the
-    /// line: both figures, with their lines, and an error each.
-    #[test]
-    fn figures_of_a_wrong_program() {
+    /// A verifier of `G0 X0`, a cut to X10 at F600, then to X20 at F600, in LinuxCNC's
+    /// reading.
+    fn verifier() -> Verifier {
         let queue: Queue = Arc::new(Mutex::new(VecDeque::from([
             vertex(0.0, 0.0, 1),
             vertex(10.0, 600.0, 2),
@@ -472,8 +488,19 @@ mod tests {
         let tol = Tolerances::new(&Settings::default(), 0.01, 0.05);
         let reader = Reader::new(model.clone(), c.flavour, None);
         let checker = Checker::new(Kinematics::Cartesian, &model, tol, None, queue);
-        let mut v = Verifier::new(reader, checker, tol, false);
-        v.bytes(b"G0 X0 Y0 Z0\nG1 X10 F300\nG1 X15 Y0.02 F600\nG1 X20 Y0");
+        Verifier::new(reader, checker, tol, false)
+    }
+
+    /// A program printed at half the programmed feed on its first cut and 0.02 mm off the
+    /// line on its second.
+    const WRONG: &[u8] = b"G0 X0 Y0 Z0\nG1 X10 F300\nG1 X15 Y0.02 F600\nG1 X20 Y0";
+
+    /// A cut printed at half its programmed feed, and a printed point 0.02 mm off the
+    /// line: both figures, with their lines, and an error each.
+    #[test]
+    fn figures_of_a_wrong_program() {
+        let mut v = verifier();
+        v.bytes(WRONG);
         let (f, diags) = v.finish();
         assert!((f.time.value - 1.0).abs() < 1e-9, "{f:?}");
         assert_eq!((f.time.line, f.time.source), (2, 2));
@@ -483,5 +510,27 @@ mod tests {
         let codes: Vec<_> = diags.iter().map(|d| d.code).collect();
         assert_eq!(codes, ["verify::report", "verify::tip", "verify::time"]);
         assert!(Axis::X.index() == 0);
+    }
+
+    /// The printed text arrives in writes of any length, cut anywhere (inside a line, at
+    /// a newline, several lines at once, a bad UTF-8 byte): the lines read are the same.
+    #[test]
+    fn lines_cut_anywhere_read_the_same() {
+        let mut whole = verifier();
+        whole.bytes(WRONG);
+        let (expected, _) = whole.finish();
+        for size in 1..WRONG.len() {
+            let mut v = verifier();
+            WRONG.chunks(size).for_each(|c| v.bytes(c));
+            let (f, _) = v.finish();
+            assert_eq!(f, expected, "writes of {size} bytes");
+        }
+        let mut bad = WRONG.to_vec();
+        bad.splice(0..0, b"; \xff\n".iter().copied());
+        let mut v = verifier();
+        v.bytes(&bad);
+        assert_eq!(v.line, 4, "the comment line, then three whole lines");
+        let (f, _) = v.finish();
+        assert_eq!((f.tip.line, f.segments), (4, 3));
     }
 }

@@ -66,6 +66,26 @@ fn command_key(text: &str) -> String {
         .collect()
 }
 
+/// What follows `key` in `code` when `code`, read as a [`command_key`], starts with it
+/// (`M42 p0 s1` starts with `M42P0S1`): the rest of the line, as written. The line is
+/// compared as it stands, so that the moves that make up most of a print (`G1 ...`)
+/// differ at their first letter and cost nothing more.
+fn after_key<'a>(code: &'a str, key: &str) -> Option<&'a str> {
+    let mut want = key.chars();
+    let mut next = want.next();
+    for (i, c) in code.char_indices() {
+        if c.is_whitespace() {
+            continue;
+        }
+        match next {
+            None => return Some(&code[i..]),
+            Some(k) if k == c.to_ascii_uppercase() => next = want.next(),
+            Some(_) => return None,
+        }
+    }
+    next.is_none().then_some("")
+}
+
 /// Reads printed lines and keeps the controller's state.
 #[derive(Debug, Clone)]
 pub struct Reader {
@@ -84,8 +104,6 @@ pub struct Reader {
     valve_close: String,
     /// The screw command up to its `{rpm}` (upper case, no blanks).
     screw: String,
-    /// Scratch for a line's command key.
-    key: String,
 }
 
 impl Reader {
@@ -114,7 +132,6 @@ impl Reader {
             valve_open,
             valve_close,
             screw,
-            key: String::new(),
         }
     }
 
@@ -140,26 +157,19 @@ impl Reader {
         self.apply(words)
     }
 
-    fn polar_command(&mut self, code: &str) -> Option<Event> {
-        self.key.clear();
-        self.key.extend(
-            code.chars()
-                .filter(|c| !c.is_whitespace())
-                .map(|c| c.to_ascii_uppercase()),
-        );
-        if self.key.is_empty() {
-            return None;
-        }
-        if self.key == self.valve_open {
+    fn polar_command(&self, code: &str) -> Option<Event> {
+        let whole = |key: &str| after_key(code, key).is_some_and(|rest| rest.trim().is_empty());
+        if whole(&self.valve_open) {
             return Some(Event::Valve(true));
         }
-        if self.key == self.valve_close {
+        if whole(&self.valve_close) {
             return Some(Event::Valve(false));
         }
-        if !self.screw.is_empty() && self.key.starts_with(&self.screw) {
-            return parse_decimal(&self.key[self.screw.len()..]).map(Event::Screw);
+        if self.screw.is_empty() {
+            return None;
         }
-        None
+        let rpm = after_key(code, &self.screw)?;
+        parse_decimal(&command_key(rpm)).map(Event::Screw)
     }
 
     /// Notes one word of a line.
@@ -398,5 +408,10 @@ mod tests {
         assert_eq!(r.line("M42 P0 S1 ; open"), Some(Event::Valve(true)));
         assert_eq!(r.line("m42 p0 s0"), Some(Event::Valve(false)));
         assert_eq!(r.line("M3 S48.5"), Some(Event::Screw(48.5)));
+        assert_eq!(r.line(" m3  s 48.5 "), Some(Event::Screw(48.5)));
+        // Another pin's value, or the command's start alone, is no valve command.
+        assert_eq!(r.line("M42 P0 S10"), None);
+        assert_eq!(r.line("M42 P0"), None);
+        assert_eq!(r.line(""), None);
     }
 }
