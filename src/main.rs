@@ -452,6 +452,7 @@ fn stats(args: &StatsArgs) -> ExitCode {
     let ctx = passes::Context {
         machine: preset.machine.as_ref(),
         polar: preset.polar.as_ref(),
+        flavour: preset.backend_flavour(),
         timing,
         ..passes::Context::default()
     };

@@ -217,6 +217,7 @@ impl Builder {
                 Emit::Grbl => Some(self.preset.grbl.decimals),
                 Emit::Ir => None,
             },
+            flavour: self.preset.backend_flavour(),
             timing: self.timing,
             relower: Some(gcode_relower),
         };

@@ -105,12 +105,8 @@ impl Preset {
     /// assert_eq!(p.polar.unwrap().controller.flavour, Some(Flavour::RrfFdm));
     /// ```
     pub fn resolve_flavours(&mut self) {
-        let flavour = match self.emit {
-            Emit::Rrf if self.polar.is_some() => Flavour::RrfFdm,
-            Emit::Rrf => Flavour::RrfCnc,
-            Emit::Grbl => Flavour::Grbl,
-            Emit::Gcode => Flavour::Linuxcnc,
-            Emit::Ir => return,
+        let Some(flavour) = self.backend_flavour() else {
+            return;
         };
         for c in [
             self.polar.as_mut().map(|p| &mut p.controller),
@@ -121,6 +117,27 @@ impl Preset {
         {
             c.flavour.get_or_insert(flavour);
         }
+    }
+
+    /// The firmware this preset's backend prints for: RepRapFirmware in FDM mode for a
+    /// polar printer and in CNC mode otherwise, Grbl, LinuxCNC for plain G-code; none
+    /// for the IR dump.
+    ///
+    /// ```
+    /// use ncpost::machine::Flavour;
+    /// use ncpost::preset::Preset;
+    /// let p = |n| Preset::builtin(n).unwrap().backend_flavour();
+    /// assert_eq!(p("pcb-mill"), Some(Flavour::Linuxcnc));
+    /// assert_eq!(p("duet-cnc"), Some(Flavour::RrfCnc));
+    /// ```
+    pub fn backend_flavour(&self) -> Option<Flavour> {
+        Some(match self.emit {
+            Emit::Rrf if self.polar.is_some() => Flavour::RrfFdm,
+            Emit::Rrf => Flavour::RrfCnc,
+            Emit::Grbl => Flavour::Grbl,
+            Emit::Gcode => Flavour::Linuxcnc,
+            Emit::Ir => return None,
+        })
     }
 
     /// The controller the run's timing follows: the polar machine's, else the

@@ -696,7 +696,7 @@ fn feed_uses_the_printed_numbers() {
 fn feed_warnings_and_errors() {
     let mut m = machine("emoc-x5");
     // RepRapFirmware's default floor (the emoc-x5 preset lowers it with M203 I6).
-    m.controller.min_speed = 30.0;
+    m.controller.min_speed = Some(30.0);
     let d = emoc_decimals();
     // X moves 0.01 mm while C swings the tip 0.87 mm: 11 mm/min is below 30.
     let a = joints(&m, [50.0, 0.0, 0.0], [0.0, 0.0]);

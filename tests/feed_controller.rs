@@ -177,7 +177,7 @@ fn controller_minutes(m: &Machine, letters: &[char; 5], mv: &Move) -> f64 {
     let drot = d[3].hypot(d[4]);
     let dist = if dxyz > 0.0 { dxyz } else { drot };
     let c = &m.controller;
-    let mut minutes = dist / mv.feed.max(c.min_speed);
+    let mut minutes = dist / mv.feed.max(c.min_speed());
     let axes = ncpost::ir::Axis::ALL;
     for k in 0..5 {
         let axis = axes

@@ -67,7 +67,7 @@ fn close(a: f64, b: f64, tol: f64) -> bool {
 fn controller(rule: FeedRule) -> Controller {
     Controller {
         feed_rule: rule,
-        min_speed: 0.0,
+        min_speed: Some(0.0),
         ..Controller::default()
     }
 }
@@ -129,7 +129,7 @@ fn axis_caps_min_speed_and_rapids() {
     assert!(close(t, 1.0, 1e-12), "{t}");
     // The controller's minimum speed: F1 runs at 30 mm/min.
     let mut c = controller(FeedRule::Nist);
-    c.min_speed = 30.0;
+    c.min_speed = Some(30.0);
     let t = total(&Model::new(&c), "G0 X0 Y0 Z0\nG1 X10 F1\n");
     assert!(close(t, 20.0, 1e-12), "{t}");
 }

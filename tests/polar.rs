@@ -747,7 +747,7 @@ struct Timed {
 fn printed_moves(text: &str, p: &Polar) -> Vec<Timed> {
     use ncpost::motion::{Model, lerp, polar_point};
     use ncpost::readback::{Event, Reader};
-    let model = Model::for_machines(Some(p), None, None, None);
+    let model = Model::for_machines(Some(p), None, None, None, None);
     let mut reader = Reader::new(model, p.controller.flavour, Some(p));
     let (r, th) = (p.r_axis, p.theta_axis);
     let mut moves = Vec::new();

@@ -460,3 +460,43 @@ fn polar_prime_after_a_retraction_starts_where_the_restore_ends() {
     assert!(codes.contains(&"verify::valve"), "{codes:?} {f:?}\n{wrong}");
     assert!(f.valve.value > 0.05, "{f:?}");
 }
+
+/// A preset without a machine is read as its backend's firmware reads it. A drill plunge
+/// at F20 (the pcb-mill preset's `plunge_feed`) runs at F20 on LinuxCNC and on Grbl, so
+/// the plain and Grbl outputs verify clean; RepRapFirmware raises it to its 30 mm/min
+/// minimum speed, so the same program for `duet-cnc` takes a third less time than
+/// programmed and fails.
+#[test]
+fn presets_without_a_machine_are_read_as_their_backend_firmware() {
+    let dir = TempDir::new().expect("temporary directory");
+    let plunge = "G21 G90\nG0 Z1\nG0 X1 Y2\nG0 Z0.1\nG1 Z-1.55 F20\nG0 Z1\n";
+    let input = write(dir.path(), "plunge.ngc", plunge);
+    let hpgl = write(
+        dir.path(),
+        "drill.hpgl",
+        "IN;\nPU;\nPA 40,80;\nPD;\nPA 40,80;\nPU;\n",
+    );
+    let out = dir.path().join("out.ngc").display().to_string();
+    for args in [
+        vec!["--preset", "pcb-mill", hpgl.as_str()],
+        vec!["--preset", "default", input.as_str()],
+        vec!["--emit", "grbl", input.as_str()],
+    ] {
+        let o = ncpost(&[&["run", "--verify", "-o", &out][..], &args[..]].concat());
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{args:?}: {stderr}");
+        assert!(figure(report(&stderr), "time") < 1.0, "{args:?}: {stderr}");
+        let printed = std::fs::read_to_string(&out).expect("the output");
+        assert!(printed.contains("Z-1.55 F20"), "{printed}");
+    }
+    let o = ncpost(&[
+        "run", "--verify", "--preset", "duet-cnc", "-o", &out, &input,
+    ]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("verify::time"), "{stderr}");
+    assert!(
+        (figure(report(&stderr), "time") - 33.33).abs() < 0.01,
+        "{stderr}"
+    );
+}

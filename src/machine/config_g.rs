@@ -68,11 +68,11 @@ pub(super) fn write(m: &Machine) -> String {
         let _ = writeln!(out, "M208{limits} ; axis limits (min:max)");
     }
     let speeds = words(&|a| c.max_feed.get(a).map(num), &axes);
-    if !speeds.is_empty() || c.min_speed > 0.0 {
+    if !speeds.is_empty() || c.min_speed() > 0.0 {
         let _ = writeln!(
             out,
             "M203{speeds} I{} ; max speeds (mm/min, deg/min), min speed",
-            num(c.min_speed)
+            num(c.min_speed())
         );
     }
     let accels = words(&|a| c.acceleration.get(a).map(num), &axes);

@@ -280,10 +280,12 @@ pub struct Controller {
     /// How F is interpreted.
     pub feed_rule: FeedRule,
     /// The controller never moves slower than this, mm/min: a slower F is raised to it,
-    /// so the block runs faster than programmed. The default is RepRapFirmware's 30 mm/min
-    /// ([`RRF_MIN_SPEED`], `M203 I` lowers it); what each firmware does is
-    /// [`Flavour::min_speed`].
-    pub min_speed: f64,
+    /// so the block runs faster than programmed. Unset: the flavour's own
+    /// ([`Flavour::min_speed`]: RepRapFirmware 30 mm/min, `M203 I` lowers it; Grbl 1;
+    /// LinuxCNC none), RepRapFirmware's without a flavour ([`RRF_MIN_SPEED`]). Read it
+    /// with [`Controller::min_speed`].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_speed: Option<f64>,
     /// Highest speed per axis, mm/min or deg/min (`M203`).
     pub max_feed: PerAxis,
     /// Acceleration per axis, mm/s² or deg/s² (`M201`).
@@ -304,6 +306,22 @@ pub struct Controller {
 }
 
 impl Controller {
+    /// The lowest speed the controller moves at, mm/min: the one set, else the
+    /// flavour's.
+    ///
+    /// ```
+    /// use ncpost::machine::{Controller, Flavour};
+    /// let linuxcnc = Controller { flavour: Some(Flavour::Linuxcnc), ..Controller::default() };
+    /// assert_eq!(linuxcnc.min_speed(), 0.0);
+    /// assert_eq!(Controller::default().min_speed(), 30.0);
+    /// let set = Controller { min_speed: Some(6.0), ..linuxcnc };
+    /// assert_eq!(set.min_speed(), 6.0);
+    /// ```
+    pub fn min_speed(&self) -> f64 {
+        self.min_speed
+            .unwrap_or_else(|| self.flavour.map_or(RRF_MIN_SPEED, Flavour::min_speed))
+    }
+
     /// How fast `G0` runs on this controller ([`RapidRule::Fixed`] without a flavour).
     pub fn rapid_rule(&self) -> RapidRule {
         self.flavour.map_or(RapidRule::Fixed, Flavour::rapid_rule)
@@ -327,7 +345,7 @@ impl Default for Controller {
     fn default() -> Self {
         Controller {
             feed_rule: FeedRule::Nist,
-            min_speed: RRF_MIN_SPEED,
+            min_speed: None,
             max_feed: PerAxis::default(),
             acceleration: PerAxis::default(),
             drivers: Drivers::default(),
@@ -454,7 +472,8 @@ impl Machine {
                 }
             }
         }
-        if !(self.controller.min_speed.is_finite() && self.controller.min_speed >= 0.0) {
+        let min_speed = self.controller.min_speed();
+        if !(min_speed.is_finite() && min_speed >= 0.0) {
             return Err(Diagnostic::settings(
                 "controller.min_speed must be a finite number >= 0",
             ));

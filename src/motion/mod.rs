@@ -66,7 +66,7 @@ use std::collections::VecDeque;
 
 use crate::ir::{AXIS_COUNT, Arc, Axis, FeedMode, Joints, Motion, MotionKind, Target};
 use crate::machine::polar::Polar;
-use crate::machine::{Controller, FeedRule, Machine, PerAxis, RapidRule};
+use crate::machine::{Controller, FeedRule, Flavour, Machine, PerAxis, RapidRule};
 use arc::ArcPath;
 use nalgebra::Point3;
 
@@ -124,7 +124,7 @@ impl Model {
         Model {
             rule: controller.feed_rule,
             timing: controller.timing,
-            min_speed: controller.min_speed.max(0.0) / 60.0,
+            min_speed: controller.min_speed().max(0.0) / 60.0,
             rapid_speed: DEFAULT_RAPID_FEED / 60.0,
             rapid: controller.rapid_rule(),
             lookahead: controller.lookahead.max(1),
@@ -139,18 +139,25 @@ impl Model {
     }
 
     /// The model a run uses: the polar machine's controller (the screw printer's), else
-    /// the machine's, else the default controller; timing by [`resolve_timing`] from the
-    /// run-wide timing `run` and a pass's own option `pass`.
+    /// the machine's, else the default controller of `flavour` (the firmware the backend
+    /// prints for); timing by [`resolve_timing`] from the run-wide timing `run` and a
+    /// pass's own option `pass`.
     pub fn for_machines(
         polar: Option<&Polar>,
         machine: Option<&Machine>,
+        flavour: Option<Flavour>,
         run: Option<Timing>,
         pass: Option<Timing>,
     ) -> Model {
         let controller = polar
             .map(|p| &p.controller)
             .or(machine.map(|m| &m.controller));
-        let model = controller.map(Model::new).unwrap_or_default();
+        let model = controller.map(Model::new).unwrap_or_else(|| {
+            Model::new(&Controller {
+                flavour,
+                ..Controller::default()
+            })
+        });
         let timing = resolve_timing(run, pass, model.timing);
         model.with_timing(timing)
     }

@@ -322,7 +322,7 @@ impl Feed {
             FeedRule::Euclidean => f,
             _ => nist_speed,
         };
-        if speed < self.machine.controller.min_speed {
+        if speed < self.machine.controller.min_speed() {
             self.warn_min_speed(span, speed, diags);
         }
         // Every axis over its max_feed counts; the first such move is shown.
@@ -380,7 +380,7 @@ impl Feed {
 
     /// `feed::min-speed` for a move at `speed`.
     fn warn_min_speed(&mut self, span: Span, speed: f64, diags: &mut Vec<Diagnostic>) {
-        let min = self.machine.controller.min_speed;
+        let min = self.machine.controller.min_speed();
         let setting = self.machine.controller.min_speed_setting();
         self.min_speed.hit(diags, || {
             Diagnostic::warning(

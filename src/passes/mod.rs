@@ -42,6 +42,9 @@ pub struct Context<'a> {
     /// The precision the backend prints with (`None` for the IR dump), so a pass can
     /// compute with the numbers the controller will see.
     pub decimals: Option<Decimals>,
+    /// The firmware the backend prints for, which times the program when the preset has
+    /// no machine of its own ([`crate::preset::Preset::backend_flavour`]).
+    pub flavour: Option<crate::machine::Flavour>,
     /// The run-wide timing model (`--timing`), overriding the controller's and the
     /// passes' own (see [`crate::motion::resolve_timing`]).
     pub timing: Option<crate::motion::Timing>,
@@ -63,10 +66,14 @@ impl<'a> Context<'a> {
         if !(rapid_feed.is_finite() && rapid_feed > 0.0) {
             return Err(Diagnostic::settings("rapid_feed must be a positive number"));
         }
-        Ok(
-            crate::motion::Model::for_machines(self.polar, self.machine, self.timing, timing)
-                .with_rapid_feed(rapid_feed),
+        Ok(crate::motion::Model::for_machines(
+            self.polar,
+            self.machine,
+            self.flavour,
+            self.timing,
+            timing,
         )
+        .with_rapid_feed(rapid_feed))
     }
 
     /// The machine, or the error a pass that needs one reports.

@@ -170,7 +170,13 @@ impl Stats {
                 let timing = motion::resolve_timing(ctx.timing, options.timing, c.timing);
                 Model::new(c).with_timing(timing)
             }
-            None => Model::for_machines(ctx.polar, ctx.machine, ctx.timing, options.timing),
+            None => Model::for_machines(
+                ctx.polar,
+                ctx.machine,
+                ctx.flavour,
+                ctx.timing,
+                options.timing,
+            ),
         }
         .with_rapid_feed(options.rapid_feed);
         Stats::with_model(model)

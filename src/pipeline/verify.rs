@@ -10,6 +10,7 @@ use std::sync::{Arc, Mutex};
 
 use crate::diag::Diagnostic;
 use crate::ir::Block;
+use crate::machine::Controller;
 use crate::motion::{Model, Timing};
 use crate::preset::{Emit, Preset};
 use crate::readback::{Checker, Kinematics, Queue, Reader, Tap, Tolerances, Verifier};
@@ -119,7 +120,12 @@ fn plan(preset: &Preset, timing: Option<Timing>) -> Option<(TapPoint, Verifier)>
         .iter()
         .position(|p| MACHINE_PASSES.contains(&p.name.as_str()))
         .unwrap_or(preset.passes.len());
-    let controller = preset.controller().cloned().unwrap_or_default();
+    // Without a machine the program is read as the backend's firmware reads it (its
+    // G0 rule, minimum speed and dwell unit), not as RepRapFirmware's defaults.
+    let controller = preset.controller().cloned().unwrap_or_else(|| Controller {
+        flavour: preset.backend_flavour(),
+        ..Controller::default()
+    });
     let model = Model::new(&controller);
     let queue: Queue = Arc::new(Mutex::new(VecDeque::new()));
     let tol = tolerances(preset);

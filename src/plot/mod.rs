@@ -393,6 +393,7 @@ impl SpeedPlot {
         let model = crate::motion::Model::for_machines(
             preset.polar.as_ref(),
             preset.machine.as_ref(),
+            preset.backend_flavour(),
             timing,
             None,
         )

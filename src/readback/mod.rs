@@ -481,7 +481,7 @@ mod tests {
         ])));
         let c = Controller {
             flavour: Some(Flavour::Linuxcnc),
-            min_speed: 0.0,
+            min_speed: Some(0.0),
             ..Controller::default()
         };
         let model = Model::new(&c);

@@ -364,7 +364,7 @@ mod tests {
     fn reader(flavour: Flavour) -> Reader {
         let c = Controller {
             flavour: Some(flavour),
-            min_speed: 0.0,
+            min_speed: Some(0.0),
             ..Controller::default()
         };
         Reader::new(Model::new(&c), Some(flavour), None)
