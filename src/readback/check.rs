@@ -14,7 +14,7 @@ use crate::ir::{AXIS_COUNT, Axis, Feed, FeedMode, Joints, MotionKind};
 use crate::machine::polar::Polar;
 use crate::motion::arc::ArcPath;
 use crate::motion::{Model, lerp};
-use nalgebra::distance;
+use nalgebra::{Point3, distance};
 
 /// The programmed vertices on their way from the tap to the checker.
 pub type Queue = Arc<Mutex<VecDeque<Vertex>>>;
@@ -266,7 +266,7 @@ impl Checker {
     /// vertex is reached only by a printed `G53` move).
     fn hits(&self, pose: &Pose, v: &Vertex) -> bool {
         !v.machine
-            && distance(&pose.0, &v.tip) <= self.tol.hit_tip()
+            && off_known(&pose.0, v) <= self.tol.hit_tip()
             && angle(&pose.1, &v.axis) <= self.tol.hit_axis()
     }
 
@@ -423,7 +423,8 @@ impl Checker {
             length += distance(&last, &pose.0);
             last = pose.0;
             if check {
-                let tip = off_segment(&pose.0, &a.0, &target.tip, target.arc.as_deref());
+                let [p, from] = [pose.0, a.0].map(|q| on_known(q, target));
+                let tip = off_segment(&p, &from, &target.tip, target.arc.as_deref());
                 self.figures.tip.note(tip, line, target.line);
                 if self.turns_tool {
                     let axis = off_arc(&pose.1, &a.1, &target.axis);
@@ -545,4 +546,22 @@ impl Checker {
             }
         }
     }
+}
+
+/// Distance of the printed tip `p` from vertex `v` along the axes `v` knows.
+fn off_known(p: &Point3<f64>, v: &Vertex) -> f64 {
+    distance(&on_known(*p, v), &v.tip)
+}
+
+/// The printed point `p` where vertex `v` knows its axes, and at `v`'s own coordinate
+/// (0) where it does not: where the program lost an axis (homing, a line it copied as
+/// written) and the printed program knows it again (an arc's end named it), only the
+/// axes both know are compared.
+fn on_known(mut p: Point3<f64>, v: &Vertex) -> Point3<f64> {
+    for (k, a) in [Axis::X, Axis::Y, Axis::Z].into_iter().enumerate() {
+        if !v.known.contains(a) {
+            p[k] = v.tip[k];
+        }
+    }
+    p
 }

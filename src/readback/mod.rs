@@ -449,7 +449,7 @@ impl Verifier {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ir::Axis;
+    use crate::ir::{Axis, AxisSet};
     use crate::machine::{Controller, Flavour};
     use crate::motion::Model;
     use std::collections::VecDeque;
@@ -467,6 +467,7 @@ mod tests {
             restore: 0.0,
             machine: false,
             partial: false,
+            known: AxisSet::XYZ,
             line,
         }
     }

@@ -4,7 +4,7 @@
 
 use nalgebra::{Point3, Vector3};
 
-use crate::ir::{Axis, Block, BlockKind, Joints, MotionKind, Target, Tracker};
+use crate::ir::{Axis, AxisSet, Block, BlockKind, Joints, MotionKind, Target, Tracker};
 use crate::machine::Machine;
 use crate::motion::arc::ArcPath;
 use crate::motion::polar_point;
@@ -151,9 +151,11 @@ pub struct Vertex {
     /// offsets do not reach; it is matched by the printed program's `G53` move.
     pub machine: bool,
     /// The target leaves X or Y unknown (before homing ends, say): a printed end whose
-    /// place in the plane the controller does not know reaches it. (An unknown Z counts
-    /// as 0 on both sides.)
+    /// place in the plane the controller does not know reaches it, and so does one that
+    /// agrees with it on the axes in `known`. (An unknown Z counts as 0 on both sides.)
     pub partial: bool,
+    /// Of X, Y and Z, the axes the programmed target knows (all three for a tool pose).
+    pub known: AxisSet,
     /// Source line.
     pub line: u32,
 }
@@ -253,6 +255,10 @@ impl Tap {
             partial: match &m.target {
                 Target::Joints(j) => !(j.known.contains(Axis::X) && j.known.contains(Axis::Y)),
                 Target::Pose(_) => false,
+            },
+            known: match &m.target {
+                Target::Joints(j) => j.known.intersection(AxisSet::XYZ),
+                Target::Pose(_) => AxisSet::XYZ,
             },
             line: b.span.line,
         })
