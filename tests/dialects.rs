@@ -4,6 +4,8 @@
 //! canned cycles start in G99 under LinuxCNC and in G98 elsewhere, and the retract mode
 //! carries into subprogram bodies (re-read with the crate's readback).
 
+mod common;
+
 use ncpost::front::gcode::Options;
 use ncpost::ir::Dialect;
 use ncpost::pipeline::compile_str;
@@ -220,4 +222,38 @@ fn retract_mode_carries_into_subprograms() {
     let header = format!("(LinuxCNC)\n{}", program.replace("G98\n", ""));
     let out = compile_str(&header, &preset("duet-cnc", None)).expect("drilled");
     assert_eq!(drilled(&out), [[1.0, 2.0, -3.0, 2.0]], "{out}");
+}
+
+/// RepRapFirmware reads neither RS274/NGC parameters and expressions nor o-word control
+/// flow: a LinuxCNC probing program for `duet-cnc` fails at its first parameter line
+/// (pcb2gcode's autolevelling writes `#107 = #5211` and `M98 P2 L#104`) instead of
+/// passing lines the firmware would refuse. RepRapFirmware's own meta commands, whose
+/// expressions use `#` and brackets in braces or after the keyword, still pass.
+#[test]
+fn rrf_refuses_linuxcnc_parameters_and_keeps_its_own_meta_commands() {
+    let linuxcnc =
+        "G21 G90\n#1 = 5\nG0 X#1 Y0\no101 while [#1 lt 10]\n#1 = [#1 + 1]\no101 endwhile\n";
+    let o = common::run_stdin(&["--preset", "duet-cnc"], linuxcnc);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("rrf::unevaluated"), "{stderr}");
+    assert!(
+        stderr.contains("RepRapFirmware cannot run `#1 = 5`"),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains("<stdin>:2") || stderr.contains(":2:"),
+        "{stderr}"
+    );
+    let rrf = "G21 G90\nvar n = #move.axes\nwhile iterations < var.n\n  G1 X{move.axes[0].max - 5} F600\necho \"axis [\" ^ iterations ^ \"]\"\nG1 X0 Y0 F600\n";
+    let o = common::run_stdin(&["--preset", "duet-cnc"], rrf);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let printed = String::from_utf8_lossy(&o.stdout);
+    for line in rrf.lines().skip(1).take(4) {
+        assert!(printed.contains(line.trim()), "{line} in\n{printed}");
+    }
+    // The same LinuxCNC program runs on LinuxCNC, which evaluates it.
+    let o = common::run_stdin(&["--preset", "default"], linuxcnc);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }

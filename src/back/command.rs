@@ -167,6 +167,15 @@ impl<W: Write> Emitter<W> {
         {
             return Ok(());
         }
+        if matches!(self.flavor, Flavor::Rrf { .. })
+            && matches!(
+                v.reason,
+                crate::ir::VerbatimReason::Unevaluated | crate::ir::VerbatimReason::ControlFlow
+            )
+            && crate::num::lexer::has_ngc_syntax(&v.text)
+        {
+            return Err(rrf_unevaluated(block, v.text.trim()));
+        }
         if v.reason == crate::ir::VerbatimReason::Delimiter {
             self.line.push_str(&v.text);
             return self.end_line(&block.comments, false);
@@ -332,6 +341,20 @@ fn calls_program(text: &str) -> bool {
             _ => false,
         }
     })
+}
+
+/// RepRapFirmware reads neither RS274/NGC parameters and expressions nor o-word control
+/// flow (its own are the meta commands, with expressions in braces): a line that needs
+/// them, which it would refuse or misread.
+fn rrf_unevaluated(block: &Block, text: &str) -> Diagnostic {
+    Diagnostic::error(
+        "rrf::unevaluated",
+        format!(
+            "RepRapFirmware cannot run `{text}`: it has no numbered parameters, bracket expressions or o-word control flow"
+        ),
+    )
+    .at_span(block.span)
+    .with_help("have the CAM write plain numbers (pcb2gcode: no autolevelling; a post without macros), emit for a controller that evaluates the line (--emit gcode for LinuxCNC), or rewrite it with RepRapFirmware's meta commands (var, set, while)")
 }
 
 /// Grbl has no subprograms: a call, return or body left in the IR.

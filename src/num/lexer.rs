@@ -229,6 +229,64 @@ pub fn oword_keyword<'a>(toks: &[Spanned<'a>]) -> Option<Spanned<'a>> {
     })
 }
 
+/// RepRapFirmware meta-command keywords that start a line (`if`, `while`, `var`, `echo`,
+/// ...): their expressions are written without braces.
+pub const RRF_META_KEYWORDS: &[&str] = &[
+    "if", "elif", "else", "while", "break", "continue", "abort", "var", "global", "set", "echo",
+    "skip",
+];
+
+/// Whether `line` is a RepRapFirmware meta command (its first word is one of
+/// [`RRF_META_KEYWORDS`]).
+///
+/// ```
+/// use ncpost::num::lexer::is_rrf_meta;
+/// assert!(is_rrf_meta("  while iterations < #move.axes"));
+/// assert!(!is_rrf_meta("#1 = [#1 + 1]"));
+/// ```
+pub fn is_rrf_meta(line: &str) -> bool {
+    matches!(tokens(line).next(), Some((_, Tok::Ident(w), _))
+        if RRF_META_KEYWORDS.iter().any(|k| k.eq_ignore_ascii_case(w)))
+}
+
+/// Whether `line` uses RS274/NGC or Fanuc macro syntax that RepRapFirmware does not read:
+/// a parameter (`#1`, `#<depth>`) or an expression in brackets (`[#1 + 2]`) outside a
+/// RepRapFirmware expression in braces (`{#move.axes}`) and outside quoted strings, or
+/// an o-word statement (`o100 while [...]`). A meta command's own expressions (`if
+/// #move.axes > 3`) are RepRapFirmware's.
+///
+/// ```
+/// use ncpost::num::lexer::has_ngc_syntax;
+/// assert!(has_ngc_syntax("#101 = #5211"));
+/// assert!(has_ngc_syntax("M98 P2 L#104"));
+/// assert!(has_ngc_syntax("o101 while [#1 lt 5]"));
+/// assert!(!has_ngc_syntax("G1 X{move.axes[0].max - 5} F600"));
+/// assert!(!has_ngc_syntax("M118 S\"#1 [done]\""));
+/// assert!(!has_ngc_syntax("if #move.axes > 3"));
+/// ```
+pub fn has_ngc_syntax(line: &str) -> bool {
+    if is_rrf_meta(line) {
+        return false;
+    }
+    let toks: Vec<Spanned<'_>> = tokens(line).collect();
+    if oword_keyword(&toks).is_some() {
+        return true;
+    }
+    let mut depth = 0usize;
+    toks.iter().any(|t| match t.1 {
+        Tok::Other("{") => {
+            depth += 1;
+            false
+        }
+        Tok::Other("}") => {
+            depth = depth.saturating_sub(1);
+            false
+        }
+        Tok::Other(o) => depth == 0 && o.starts_with(['#', '[']),
+        _ => false,
+    })
+}
+
 /// The parameter a `#… = value` assignment sets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Assigned<'a> {

@@ -9,11 +9,7 @@ use crate::front::gcode::lexer::{Spanned, Tok, lex_line};
 use crate::ir::{AxisSet, Block, BlockKind, Command, Comment, CommentStyle, Span, VerbatimReason};
 use crate::num::lexer::Assigned;
 
-/// RepRapFirmware meta-command keywords that start a line.
-const META_KEYWORDS: &[&str] = &[
-    "if", "elif", "else", "while", "break", "continue", "abort", "var", "global", "set", "echo",
-    "skip",
-];
+use crate::num::lexer::RRF_META_KEYWORDS as META_KEYWORDS;
 /// Meta keywords that open an indented block.
 const META_BLOCK_KEYWORDS: &[&str] = &["if", "elif", "else", "while"];
 
