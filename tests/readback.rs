@@ -312,16 +312,28 @@ fn verify_text(
         center,
         table: [polar.omega_max.to_radians(), polar.alpha_max.to_radians()],
     };
+    let controller = preset.controller().cloned().unwrap_or_default();
+    read_back(kin, &controller, Some(polar), source, printed)
+}
+
+/// `printed` read back against `source` through `kin` on `controller` (a polar printer's
+/// valve and screw when `polar` is given): the figures and the error codes.
+fn read_back(
+    kin: Kinematics,
+    controller: &ncpost::machine::Controller,
+    polar: Option<&ncpost::machine::polar::Polar>,
+    source: &str,
+    printed: &str,
+) -> (Figures, Vec<&'static str>) {
     let program = parse_str(source, &Options::default()).expect("the source parses");
     let mut vertices = VecDeque::new();
     Tap::new(kin.clone()).record(&program.blocks, &mut vertices);
     let queue: Queue = Arc::new(Mutex::new(vertices));
-    let controller = preset.controller().cloned().unwrap_or_default();
-    let model = Model::new(&controller);
+    let model = Model::new(controller);
     let tol = Tolerances::new(&Settings::default(), 0.01, 0.05);
-    let reader = Reader::new(model.clone(), controller.flavour, Some(polar));
-    let checker = Checker::new(kin, &model, tol, Some(polar), queue);
-    let mut v = Verifier::new(reader, checker, tol, true);
+    let reader = Reader::new(model.clone(), controller.flavour, polar);
+    let checker = Checker::new(kin, &model, tol, polar, queue);
+    let mut v = Verifier::new(reader, checker, tol, polar.is_some());
     v.bytes(printed.as_bytes());
     let (figures, diags) = v.finish();
     let codes = diags
@@ -503,27 +515,11 @@ fn presets_without_a_machine_are_read_as_their_backend_firmware() {
 
 /// `printed` read back against `source` on a LinuxCNC mill (Cartesian, no machine).
 fn verify_cartesian(source: &str, printed: &str) -> (Figures, Vec<&'static str>) {
-    let program = parse_str(source, &Options::default()).expect("the source parses");
-    let mut vertices = VecDeque::new();
-    Tap::new(Kinematics::Cartesian).record(&program.blocks, &mut vertices);
-    let queue: Queue = Arc::new(Mutex::new(vertices));
     let controller = ncpost::machine::Controller {
         flavour: Some(ncpost::machine::Flavour::Linuxcnc),
         ..Default::default()
     };
-    let model = Model::new(&controller);
-    let tol = Tolerances::new(&Settings::default(), 0.01, 0.05);
-    let reader = Reader::new(model.clone(), controller.flavour, None);
-    let checker = Checker::new(Kinematics::Cartesian, &model, tol, None, queue);
-    let mut v = Verifier::new(reader, checker, tol, false);
-    v.bytes(printed.as_bytes());
-    let (figures, diags) = v.finish();
-    let codes = diags
-        .iter()
-        .map(|d| d.code)
-        .filter(|&c| c != "verify::report")
-        .collect();
-    (figures, codes)
+    read_back(Kinematics::Cartesian, &controller, None, source, printed)
 }
 
 /// After homing, arcs from a start the program does not know are copied as written; the
