@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use crate::back::{gcode, grbl, rrf};
 use crate::diag::Diagnostic;
 use crate::front;
-use crate::machine::{Controller, Flavour, Machine};
+use crate::machine::{Controller, DwellUnit, Flavour, Machine};
 
 /// The output format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -116,6 +116,24 @@ impl Preset {
         .flatten()
         {
             c.flavour.get_or_insert(flavour);
+        }
+        // The target controller refuses an arc whose end is off its circle beyond its own
+        // tolerance (Grbl: error:33 beyond 0.005 mm and 0.1 % of the radius, and the job
+        // stops there): the frontend's check is no looser, so such an arc is an error
+        // at its line and column (`strict_arcs = false` keeps it).
+        let target = self.controller().and_then(|c| c.flavour).unwrap_or(flavour);
+        if let Some(t) = target.arc_tolerance() {
+            let tol = &mut self.gcode_input.arc_tolerance;
+            *tol = tol.min(t.absolute);
+        }
+        // A plain G-code preset prints `G4 P` in the unit its controller reads: LinuxCNC
+        // reads seconds, so `G4 P500` for half a second would wait 500 s there.
+        if self.emit == Emit::Gcode
+            && let Some(f) = self.controller().and_then(|c| c.flavour)
+        {
+            self.gcode
+                .dwell_milliseconds
+                .get_or_insert(f.dwell() != DwellUnit::Seconds);
         }
     }
 

@@ -384,3 +384,59 @@ fn polar_arcs_stay_within_the_tolerance_of_the_arc() {
     assert!(cutting, "{out}");
     assert!(worst <= 0.01 + 2e-4, "{worst} mm\n{out}");
 }
+
+/// Compiles CL text with a built-in preset (verification on) and gives the printed
+/// program; a run with errors fails the test.
+fn compile_cl(preset: Preset, cl: &str) -> String {
+    use ncpost::pipeline::{Pipeline, Source};
+    let mut p = Pipeline::builder()
+        .preset(preset)
+        .verify(true)
+        .build()
+        .expect("pipeline");
+    let (mut out, mut diags) = (Vec::new(), Vec::new());
+    p.run_source(Source::Cl, cl.as_bytes(), &mut out, &mut |d| diags.push(d))
+        .expect("writes");
+    assert!(
+        diags
+            .iter()
+            .all(|d| d.severity != ncpost::diag::Severity::Error),
+        "{diags:?}"
+    );
+    String::from_utf8(out).expect("utf-8")
+}
+
+/// The dwell of the printed `G4` line, seconds, read as the controller reads `P`: whole
+/// milliseconds on RepRapFirmware, seconds on LinuxCNC.
+fn printed_dwell(text: &str, p_in_seconds: bool) -> f64 {
+    let line = text
+        .lines()
+        .find(|l| l.starts_with("G4"))
+        .unwrap_or_else(|| panic!("no G4 in\n{text}"));
+    let p = word(line, 'P').expect("G4 P");
+    if p_in_seconds { p } else { p.trunc() / 1000.0 }
+}
+
+/// A CL `DELAY/0.5` waits half a second on each 5-axis preset's controller: LinuxCNC
+/// (the plain G-code presets' flavour) reads `G4 P` as seconds, so `G4 P500` would wait
+/// 500 s there (igesio_apt.cl was printed so); RepRapFirmware reads milliseconds. An
+/// explicit `gcode.dwell_milliseconds` still decides.
+#[test]
+fn a_dwell_waits_its_time_on_each_presets_controller() {
+    let cl = "UNITS/MM\nMULTAX/ON\nRAPID\nGOTO/0,0,10,0,0,1\nFEDRAT/MMPM,500\n\
+              GOTO/10,0,0,0,0,1\nDELAY/0.5\nGOTO/20,0,0,0,0,1\nFINI\n";
+    for (name, seconds) in [
+        ("emoc-x5", false),
+        ("trunnion-bc", true),
+        ("head-table", true),
+        ("head-head-ab", true),
+    ] {
+        let text = compile_cl(Preset::builtin(name).expect("preset"), cl);
+        let dwell = printed_dwell(&text, seconds);
+        assert!((dwell - 0.5).abs() < 1e-9, "{name}: {dwell} s\n{text}");
+    }
+    let mut p = Preset::builtin("trunnion-bc").expect("preset");
+    p.gcode.dwell_milliseconds = Some(true);
+    let text = compile_cl(p, cl);
+    assert!(text.contains("G4 P500"), "{text}");
+}

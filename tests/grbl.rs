@@ -495,3 +495,53 @@ fn split_unsupported_groups() {
         ("G91.1 G17".to_string(), String::new())
     );
 }
+
+/// Grbl's own arc check (`gc_execute_line`, error:33): the end's distance from the centre
+/// differs from the start's by more than 0.005 mm and 0.1 % of the radius, or by 0.5 mm.
+fn grbl_refuses(start: [f64; 2], end: [f64; 2], centre: [f64; 2]) -> bool {
+    let r0 = (start[0] - centre[0]).hypot(start[1] - centre[1]);
+    let r1 = (end[0] - centre[0]).hypot(end[1] - centre[1]);
+    let dr = (r1 - r0).abs();
+    dr > 0.5 || (dr > 0.005 && dr > 0.001 * r0)
+}
+
+/// Issue 20, defect 9: an arc Grbl would stop on (error:33, the job halts there) is an
+/// error at its line and column when the target is Grbl, although it is within the
+/// frontend's own 0.01 mm; one just inside Grbl's 0.005 mm is printed, and Grbl's check
+/// on the printed numbers passes. RepRapFirmware runs either arc.
+#[test]
+fn an_arc_grbl_refuses_is_an_error_at_its_line_and_column() {
+    let off = "G21 G90\nG0 X0 Y0\nG2 X10.006 Y0 I5 J0 F300\n";
+    let (_, diags) = run(off, Preset::default());
+    let e = errors(&diags);
+    assert_eq!(e.len(), 1, "{}", render_all("off.nc", &diags));
+    assert_eq!(e[0].code, "gcode::arc");
+    let at = e[0].location.as_ref().expect("a place");
+    assert_eq!((at.line, at.column), (3, 1));
+    let inside = "G21 G90\nG0 X0 Y0\nG2 X10.004 Y0 I5 J0 F300\n";
+    let (text, diags) = run(inside, Preset::default());
+    assert!(errors(&diags).is_empty(), "{}", render_all("in.nc", &diags));
+    let arc = text.lines().find(|l| l.starts_with("G2")).expect("the arc");
+    let w = |c: char| {
+        arc.split_whitespace()
+            .find_map(|w| w.strip_prefix(c)?.parse::<f64>().ok())
+            .unwrap_or(0.0)
+    };
+    assert!(
+        !grbl_refuses([0.0, 0.0], [w('X'), w('Y')], [w('I'), w('J')]),
+        "{arc}"
+    );
+    let mut rrf = Pipeline::builder()
+        .preset(Preset::default())
+        .emit(Emit::Rrf)
+        .build()
+        .expect("builds");
+    let (mut out, mut diags) = (Vec::new(), Vec::new());
+    rrf.run_gcode(off.as_bytes(), &mut out, &mut |d| diags.push(d))
+        .expect("runs");
+    assert!(
+        errors(&diags).is_empty(),
+        "{}",
+        render_all("rrf.nc", &diags)
+    );
+}

@@ -27,9 +27,11 @@ pub struct Options {
     /// How E is written.
     pub extrusion: Extrusion,
     /// `G4 P` in milliseconds (Fanuc, Marlin; the frontend's default reading, so the
-    /// number is kept) rather than seconds (LinuxCNC: set this and the frontend's
-    /// `dwell_p_milliseconds` to false).
-    pub dwell_milliseconds: bool,
+    /// number is kept) rather than seconds (LinuxCNC). Unset: what the preset's
+    /// controller reads (its flavour's dwell unit: seconds for `linuxcnc`, the default
+    /// flavour of a `gcode` preset with a `[machine]`), else milliseconds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dwell_milliseconds: Option<bool>,
 }
 
 impl Default for Options {
@@ -42,7 +44,7 @@ impl Default for Options {
             checksums: false,
             modal_motion: false,
             extrusion: Extrusion::Relative,
-            dwell_milliseconds: true,
+            dwell_milliseconds: None,
         }
     }
 }
@@ -69,7 +71,7 @@ impl<W: Write> Writer<W> {
             checksums: options.checksums,
             modal_motion: options.modal_motion,
             extrusion: options.extrusion,
-            dwell_milliseconds: options.dwell_milliseconds,
+            dwell_milliseconds: options.dwell_milliseconds.unwrap_or(true),
             feed_on_rapids: false,
         };
         Writer(Emitter::new(out, Flavor::Plain, fmt))

@@ -25,7 +25,7 @@ mod reader;
 
 pub use check::{Checker, Queue};
 pub use path::{Kinematics, Tap, Vertex};
-pub use reader::{Event, Move, Reader, dwell_p_unit};
+pub use reader::{Event, Move, Reader};
 
 use serde::{Deserialize, Serialize};
 

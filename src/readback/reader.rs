@@ -5,8 +5,8 @@
 //! minimum speed, the per-axis caps).
 
 use crate::ir::{Arc, Axis, AxisSet, Feed, FeedMode, Joints, MotionKind, Plane};
-use crate::machine::Flavour;
 use crate::machine::polar::Polar;
+use crate::machine::{DwellUnit, Flavour};
 use crate::motion::{Model, Timing};
 use crate::num::lexer::{Tok, tokens};
 use crate::num::parse_decimal;
@@ -46,18 +46,6 @@ pub struct Move {
     pub seconds: f64,
 }
 
-/// The seconds one unit of `G4 P` stands for on `flavour`'s controller.
-///
-/// RepRapFirmware, Marlin and Klipper read `G4 P` as milliseconds, Grbl and LinuxCNC as
-/// seconds. This is the one place the reader assumes a flavour's dwell unit: when
-/// `machine::Flavour` says it itself, this function asks it.
-pub fn dwell_p_unit(flavour: Option<Flavour>) -> f64 {
-    match flavour {
-        Some(Flavour::RrfFdm | Flavour::RrfCnc | Flavour::Marlin | Flavour::Klipper) => 0.001,
-        Some(Flavour::Grbl | Flavour::Linuxcnc) | None => 1.0,
-    }
-}
-
 /// A machine command of the polar printer, as words (upper case, blanks dropped).
 fn command_key(text: &str) -> String {
     text.chars()
@@ -90,7 +78,8 @@ fn after_key<'a>(code: &'a str, key: &str) -> Option<&'a str> {
 #[derive(Debug, Clone)]
 pub struct Reader {
     model: Model,
-    dwell_unit: f64,
+    /// What `G4 P` counts on the controller (seconds without a flavour).
+    dwell_unit: DwellUnit,
     pos: Joints,
     absolute: bool,
     relative_e: bool,
@@ -120,7 +109,7 @@ impl Reader {
         };
         Reader {
             model: model.with_timing(Timing::ConstantVelocity),
-            dwell_unit: dwell_p_unit(flavour),
+            dwell_unit: flavour.map_or(DwellUnit::Seconds, Flavour::dwell),
             pos: Joints::default(),
             absolute: true,
             relative_e: false,
@@ -190,7 +179,13 @@ impl Reader {
                 190 => self.plane = Plane::YZ,
                 200 => self.inch = true,
                 210 => self.inch = false,
-                280 => words.home = true,
+                // Homing, bed probing (RepRapFirmware's and Prusa's G29 take X Y as an
+                // area), going to a stored position, direct moves: where they end is the
+                // controller's business, not the written numbers'.
+                60 | 280 | 290 | 300 | 1610 | 1620 => words.home = true,
+                // Probing (G31, G38.x) stops somewhere along the named axes; offsets set
+                // with G10 or G52 move the frame of the named axes.
+                100 | 310 | 380..=389 | 520 => words.probe = true,
                 530 => words.machine = true,
                 900 => self.absolute = true,
                 910 => self.absolute = false,
@@ -226,16 +221,16 @@ impl Reader {
         }
         if w.dwell {
             let seconds = match (w.p, w.s) {
-                (Some(p), _) => p * self.dwell_unit,
+                (Some(p), _) => self.dwell_unit.seconds(p),
                 (None, Some(s)) => s,
                 _ => 0.0,
             };
             return Some(Event::Dwell(seconds));
         }
-        if w.home {
+        if w.home || w.probe {
             let mut lost = AxisSet::default();
             for a in Axis::ALL {
-                if w.axes[a.index()].is_some() || !w.any_axis {
+                if w.axes[a.index()].is_some() || (w.home && !w.any_axis) {
                     lost.insert(a);
                 }
             }
@@ -346,6 +341,8 @@ struct Words {
     motion: Option<u8>,
     dwell: bool,
     home: bool,
+    /// A probing or offset code: the named axes end where the controller says.
+    probe: bool,
     set: bool,
     machine: bool,
     any_axis: bool,
@@ -398,6 +395,24 @@ mod tests {
         assert!((seconds(&mut r, "G4 P250") - 0.25).abs() < 1e-12);
         let mut g = reader(Flavour::Grbl);
         assert!((seconds(&mut g, "G4 P0.5") - 0.5).abs() < 1e-12);
+    }
+
+    /// A bed-probing `G29` with an area in X and Y (PrusaSlicer's Core One start code)
+    /// and a `G38.2` probe are no moves to their numbers: the named axes are lost.
+    #[test]
+    fn probing_codes_with_axis_words_are_no_moves() {
+        let mut r = reader(Flavour::RrfFdm);
+        r.line("G0 X0 Y0 Z5");
+        let lost = |e: Option<Event>| match e {
+            Some(Event::Lost(set)) => set,
+            e => panic!("{e:?}"),
+        };
+        let set = lost(r.line("G29 P9 X208 Y-2.5 W32 H4"));
+        assert!(set.contains(Axis::X) && set.contains(Axis::Y) && !set.contains(Axis::Z));
+        assert_eq!(r.pos().get(Axis::X), None);
+        let set = lost(r.line("G38.2 Z-10 F50"));
+        assert!(set.contains(Axis::Z) && !set.contains(Axis::X));
+        assert!(lost(r.line("G29")).contains(Axis::Z));
     }
 
     /// The polar printer's commands are recognised as written in the preset.
