@@ -716,7 +716,13 @@ fn e_axis_mode_reshares_an_uneven_split() {
 #[test]
 fn constant_flow_steers_the_feed() {
     let src = "M83\nG1 X0 Y0 F600\nG1 X10 E1\nG1 X30 E1\nG0 X40\nG1 X41 E2 F600\n";
-    let (out, diags) = alone("mode = \"constant-flow\"\nrpm = 30.0\ne_per_rev = 1.0", src);
+    let options = "mode = \"constant-flow\"\nrpm = 30.0\ne_per_rev = 1.0";
+    // For RepRapFirmware, whose minimum speed is 30 mm/min (LinuxCNC has none: there the
+    // last block runs at the 15 mm/min it needs).
+    let text = format!(
+        "emit = \"rrf\"\n[[passes]]\nname = \"extrude-rate\"\n[passes.options]\n{options}\n"
+    );
+    let (out, diags) = compile(src, &Preset::from_toml(&text).expect("preset"), None);
     // 30 rpm × 1 E/rev = 0.5 E/s: 1 E takes 2 s, so 10 mm at 300 mm/min and 20 mm at
     // 600. The last block would need 2 E in 4 s over 1 mm, 15 mm/min, below the
     // controller's 30 mm/min: it runs at 30 (2 s) and the screw doubles for it.

@@ -554,3 +554,36 @@ fn moves_after_lines_copied_as_written_are_compared_on_the_axes_the_program_know
     let (f, codes) = verify_cartesian(source, &wrong);
     assert!(codes.contains(&"verify::tip"), "{codes:?} {f:?}\n{wrong}");
 }
+
+/// Under trapezoid timing the printed moves are timed with their neighbours, as the
+/// valve look-ahead timed them: the travels' leads and the material are judged and exact
+/// (the open command lands where the travel, braking into the extrusion, is its delay
+/// away from it), and a valve told a wrong delay fails by that difference. Block times
+/// are reported but not judged: the programmed feed gives none once the machine
+/// accelerates.
+#[test]
+fn trapezoid_timing_judges_valve_leads_and_material_on_the_planned_times() {
+    let dir = TempDir::new().expect("temporary directory");
+    let input = write(dir.path(), "travel.gcode", TRAVELS);
+    let out = dir.path().join("travel.out").display().to_string();
+    let run = |extra: &[&str]| {
+        let args = [
+            &["run", "--preset", "polar-printer", "--timing", "trapezoid"][..],
+            extra,
+        ]
+        .concat();
+        ncpost(&[&args[..], &[input.as_str(), "-o", out.as_str()][..]].concat())
+    };
+    let o = run(&[]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    let r = report(&stderr);
+    assert!(figure(r, "valve lead") < 1.0, "{r}");
+    assert!(figure(r, "material") < 0.5, "{r}");
+    assert!(r.contains("(tolerance inf %)"), "{r}");
+    let o = run(&["--pass", "valve-lookahead:open_delay_s=0.3"]);
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("verify::valve"), "{stderr}");
+    assert!(figure(report(&stderr), "valve lead") > 50.0, "{stderr}");
+}

@@ -739,7 +739,11 @@ fn subprograms_reached_from_kept_bodies_stay() {
         #104 = 2\n\
         o5 repeat [6]\n  o3 call\no5 endrepeat\n\
         M2\n";
-    let o = common::run_stdin(&["--emit", "rrf", "-o", "-"], program);
+    // For LinuxCNC, which runs o-word subroutines (RepRapFirmware has none).
+    let o = common::run_stdin(
+        &["--emit", "gcode", "--pass", "expand-subprograms", "-o", "-"],
+        program,
+    );
     let printed = String::from_utf8_lossy(&o.stdout);
     let stderr = String::from_utf8_lossy(&o.stderr);
     for needle in ["o2 sub", "o2 endsub", "o2 call", "o3 sub", "o3 call"] {

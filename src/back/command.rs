@@ -172,9 +172,9 @@ impl<W: Write> Emitter<W> {
                 v.reason,
                 crate::ir::VerbatimReason::Unevaluated | crate::ir::VerbatimReason::ControlFlow
             )
-            && crate::num::lexer::has_ngc_syntax(&v.text)
+            && self.rrf_ngc_line(block, v, diags)?
         {
-            return Err(rrf_unevaluated(block, v.text.trim()));
+            return Ok(());
         }
         if v.reason == crate::ir::VerbatimReason::Delimiter {
             self.line.push_str(&v.text);
@@ -222,6 +222,42 @@ impl<W: Write> Emitter<W> {
             ..Modes::default()
         };
         Ok(())
+    }
+
+    /// A copied line in RS274/NGC or Fanuc macro syntax, for RepRapFirmware, which reads
+    /// neither: a line that only sets parameters is left out as a comment with a warning
+    /// (nothing RepRapFirmware runs can read the value; the firmware would report the
+    /// line as an error), any other use is an error. `Ok(true)` when the line is dealt
+    /// with, `Ok(false)` when it is RepRapFirmware's own (printed as written).
+    fn rrf_ngc_line(
+        &mut self,
+        block: &Block,
+        v: &crate::ir::Verbatim,
+        diags: &mut Vec<Diagnostic>,
+    ) -> Result<bool, Diagnostic> {
+        let text = v.text.trim();
+        if !crate::num::lexer::has_ngc_syntax(text) {
+            return Ok(false);
+        }
+        if !crate::num::lexer::sets_parameters_only(text) {
+            return Err(rrf_unevaluated(block, text));
+        }
+        diags.push(
+            Diagnostic::warning(
+                "rrf::parameter",
+                format!("RepRapFirmware has no numbered parameters: `{text}` is left out as a comment"),
+            )
+            .at_span(block.span)
+            .with_help("the value it sets feeds no line RepRapFirmware can run (one that uses it is an error)"),
+        );
+        let note = Comment {
+            text: format!(" {text} (left out: RepRapFirmware has no numbered parameters)"),
+            style: CommentStyle::Semicolon,
+        };
+        self.push_comment(&note, CommentStyle::Semicolon);
+        self.end_line(&block.comments, false)?;
+        self.forget(v.clobbers);
+        Ok(true)
     }
 
     /// A line the IR passes as text, for Grbl: `%` is left out, an `O` number becomes a

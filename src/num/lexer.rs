@@ -287,6 +287,19 @@ pub fn has_ngc_syntax(line: &str) -> bool {
     })
 }
 
+/// Whether `line` does nothing but set parameters ([`parameter_assignments`] of its
+/// tokens).
+///
+/// ```
+/// use ncpost::num::lexer::sets_parameters_only;
+/// assert!(sets_parameters_only("#1 = [#1 + 1] (count)"));
+/// assert!(!sets_parameters_only("G0 X#1"));
+/// ```
+pub fn sets_parameters_only(line: &str) -> bool {
+    let toks: Vec<Spanned<'_>> = tokens(line).collect();
+    parameter_assignments(&toks, |_| {})
+}
+
 /// The parameter a `#… = value` assignment sets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Assigned<'a> {

@@ -43,7 +43,7 @@ pub struct Context<'a> {
     /// compute with the numbers the controller will see.
     pub decimals: Option<Decimals>,
     /// The firmware the backend prints for, which times the program when the preset has
-    /// no machine of its own ([`crate::preset::Preset::backend_flavour`]).
+    /// no machine of its own (the preset's backend flavour).
     pub flavour: Option<crate::machine::Flavour>,
     /// The run-wide timing model (`--timing`), overriding the controller's and the
     /// passes' own (see [`crate::motion::resolve_timing`]).

@@ -126,7 +126,8 @@ fn plan(preset: &Preset, timing: Option<Timing>) -> Option<(TapPoint, Verifier)>
         flavour: preset.backend_flavour(),
         ..Controller::default()
     });
-    let model = Model::new(&controller);
+    let timing = timing.unwrap_or(controller.timing);
+    let model = Model::new(&controller).with_timing(timing);
     let queue: Queue = Arc::new(Mutex::new(VecDeque::new()));
     let tol = tolerances(preset);
     let polar = preset.polar.as_ref();
@@ -138,15 +139,13 @@ fn plan(preset: &Preset, timing: Option<Timing>) -> Option<(TapPoint, Verifier)>
         queue,
     };
     let verifier = Verifier::new(reader, checker, tol, polar.is_some());
-    // The readback times at constant velocity: under trapezoid timing its times are not
-    // the passes' to be judged by.
-    let timed = timing.unwrap_or(controller.timing) == Timing::ConstantVelocity;
+    // Under trapezoid timing the printed moves are timed with their neighbours, as the
+    // passes that place valve commands and screw speeds timed them.
     Some((
         tap,
-        if timed {
-            verifier
-        } else {
-            verifier.without_times()
+        match timing {
+            Timing::ConstantVelocity => verifier,
+            Timing::Trapezoid => verifier.with_planner(model),
         },
     ))
 }

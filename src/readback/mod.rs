@@ -30,6 +30,7 @@ pub use reader::{Event, Move, Reader};
 use serde::{Deserialize, Serialize};
 
 use crate::diag::Diagnostic;
+use crate::motion::{Model, Planner};
 
 /// The `[verify]` section of a preset: tolerance overrides of `ncpost run --verify`.
 /// Unset tolerances come from the passes' own options.
@@ -360,8 +361,9 @@ pub struct Verifier {
     checker: Checker,
     tol: Tolerances,
     polar: bool,
-    /// Block times, valve leads and material are judged.
-    timed: bool,
+    /// Under trapezoid timing, the planner that times the printed moves with their
+    /// neighbours (each event with its output line) before the checker sees them.
+    planner: Option<Planner<(Event, u64)>>,
     partial: Vec<u8>,
     line: u64,
 }
@@ -374,16 +376,19 @@ impl Verifier {
             checker,
             tol,
             polar,
-            timed: true,
+            planner: None,
             partial: Vec::new(),
             line: 0,
         }
     }
 
-    /// The same verifier reporting but not judging block times, valve leads and
-    /// material (for a run timed with acceleration, which this reader does not model).
-    pub fn without_times(mut self) -> Verifier {
-        self.timed = false;
+    /// The same verifier timing the printed program as `model`'s look-ahead planner does
+    /// (trapezoid timing: each move accelerates and brakes within what its neighbours
+    /// allow, and stops at dwells and homing). Valve leads and material are judged on
+    /// those times; block times are reported but not judged, since the programmed feed
+    /// gives no block time once the machine accelerates.
+    pub fn with_planner(mut self, model: Model) -> Verifier {
+        self.planner = Some(Planner::new(model));
         self
     }
 
@@ -424,8 +429,32 @@ impl Verifier {
 
     fn take_text(&mut self, text: &str) {
         self.line += 1;
-        if let Some(e) = self.reader.line(text) {
+        let Some(e) = self.reader.line(text) else {
+            return;
+        };
+        let Some(planner) = self.planner.as_mut() else {
             self.checker.event(&e, self.line);
+            return;
+        };
+        let item = (e, self.line);
+        match e {
+            Event::Move(m) => planner.push_move(m.segment, item),
+            Event::Dwell(seconds) => planner.push_stop(seconds, item),
+            // Homing ends with the machine at rest.
+            Event::Lost(_) => planner.push_stop(0.0, item),
+            Event::Valve(_) | Event::Screw(_) => planner.push_other(item),
+        }
+        Self::check_planned(planner, &mut self.checker);
+    }
+
+    /// Hands the moves whose planned times are final to the checker, with those times.
+    fn check_planned(planner: &mut Planner<(Event, u64)>, checker: &mut Checker) {
+        while let Some(timed) = planner.pop() {
+            let (mut e, line) = timed.payload;
+            if let Event::Move(m) = &mut e {
+                m.seconds = timed.motion.map_or(0.0, |(_, p)| p.duration());
+            }
+            checker.event(&e, line);
         }
     }
 
@@ -435,12 +464,13 @@ impl Verifier {
             let rest = std::mem::take(&mut self.partial);
             self.take_line(&rest);
         }
-        let figures = self.checker.finish();
         let mut tol = self.tol;
-        if !self.timed {
-            (tol.time, tol.valve_lead) = (f64::INFINITY, f64::INFINITY);
-            (tol.material_file, tol.material_block) = (f64::INFINITY, f64::INFINITY);
+        if let Some(planner) = self.planner.as_mut() {
+            planner.finish();
+            Self::check_planned(planner, &mut self.checker);
+            tol.time = f64::INFINITY;
         }
+        let figures = self.checker.finish();
         let diags = figures.diagnostics(&tol, self.polar);
         (figures, diags)
     }

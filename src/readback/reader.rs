@@ -7,7 +7,7 @@
 use crate::ir::{Arc, Axis, AxisSet, Feed, FeedMode, Joints, MotionKind, Plane};
 use crate::machine::polar::Polar;
 use crate::machine::{DwellUnit, Flavour};
-use crate::motion::{Model, Timing};
+use crate::motion::{Model, Segment};
 use crate::num::lexer::{Tok, tokens};
 use crate::num::parse_decimal;
 
@@ -42,8 +42,12 @@ pub struct Move {
     pub arc: Option<Arc>,
     /// A `G53` move: its words are machine coordinates.
     pub machine: bool,
-    /// Seconds the controller takes.
+    /// Seconds the controller takes (at constant velocity; a trapezoid-timed readback
+    /// plans `segment` with its neighbours instead).
     pub seconds: f64,
+    /// The controller's segment of the move: its length under the feed rule, top speed
+    /// and acceleration.
+    pub segment: Segment,
 }
 
 /// A machine command of the polar printer, as words (upper case, blanks dropped).
@@ -96,8 +100,9 @@ pub struct Reader {
 }
 
 impl Reader {
-    /// A reader for a controller timed by `model` (its constant-velocity form) on
-    /// `flavour`, knowing the commands of `polar` when there is one.
+    /// A reader for a controller timed by `model` on `flavour`, knowing the commands of
+    /// `polar` when there is one. Each move's `seconds` is its constant-velocity time;
+    /// its `segment` carries the accelerations when `model` is trapezoid-timed.
     pub fn new(model: Model, flavour: Option<Flavour>, polar: Option<&Polar>) -> Reader {
         let (valve_open, valve_close, screw) = match polar {
             Some(p) => (
@@ -108,7 +113,7 @@ impl Reader {
             None => (String::new(), String::new(), String::new()),
         };
         Reader {
-            model: model.with_timing(Timing::ConstantVelocity),
+            model,
             dwell_unit: flavour.map_or(DwellUnit::Seconds, Flavour::dwell),
             pos: Joints::default(),
             absolute: true,
@@ -331,6 +336,7 @@ impl Reader {
             arc,
             machine: false,
             seconds,
+            segment: seg,
         }
     }
 }
