@@ -712,9 +712,12 @@ fn modes_left_by_a_body_matter_only_to_lines_that_follow() {
 /// pcb2gcode_al_linuxcnc_back.ngc got once parameter lines stopped forgetting E).
 #[test]
 fn a_definition_between_moves_adds_no_axis() {
-    // The call with an argument keeps the definition in the output.
+    // The call with an argument keeps the definition in the output: for LinuxCNC, which
+    // runs it (RepRapFirmware has no o-word subroutines: an error there).
     let src = "G21 G90 G0 X0 Y0 Z5\no100 sub\nG0 X1\no100 endsub\n#1 = 2\nG0 Z2\no100 call\nG0 Y3\no100 call [1]\nM30\n";
-    let (printed, _, moves) = for_rrf(src, "subprograms::modes");
+    let (ok, printed, err) = run_cli(src, &["--emit", "gcode", "--pass", "expand-subprograms"]);
+    assert!(ok && !err.contains("subprograms::modes"), "{err}");
+    let moves = reread(&printed, ncpost::machine::Flavour::Linuxcnc);
     assert!(
         !printed.contains(" E") && !printed.contains("M82"),
         "{printed}"
