@@ -37,9 +37,9 @@ pub struct Options {
     /// arc is accepted (a relative 0.1 % of the radius is also allowed).
     pub arc_tolerance: f64,
     /// An arc whose end is off its circle by more than the tolerance is an error (the
-    /// default: LinuxCNC, Grbl and RepRapFirmware refuse such an arc and stop the job
-    /// there); when false it is a warning and the arc is kept as written (an opt-in for
-    /// Mach3-style controllers that cut it anyway).
+    /// default: LinuxCNC and Grbl refuse such an arc and stop the job there); when false
+    /// it is a warning and the arc is kept as written (an opt-in for controllers that cut
+    /// it anyway: RepRapFirmware, Mach3).
     pub strict_arcs: bool,
     /// Longest line accepted, bytes; a longer line is an error and is skipped.
     pub max_line_len: usize,

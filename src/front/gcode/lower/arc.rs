@@ -32,9 +32,9 @@ fn off_circle_err(line_no: u32, text: &str, msg: String, help: &str) -> Diagnost
         text,
         msg,
         &format!(
-            "{help}; LinuxCNC, Grbl and RepRapFirmware refuse such an arc and stop the job \
-             there (set gcode_input.strict_arcs = false to keep it as written, for a \
-             controller that cuts it anyway)"
+            "{help}; LinuxCNC and Grbl refuse such an arc and stop the job there (set \
+             gcode_input.strict_arcs = false to keep it as written, for a controller \
+             that cuts it anyway, as RepRapFirmware and Mach3 do)"
         ),
     )
 }
