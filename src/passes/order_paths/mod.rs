@@ -337,8 +337,7 @@ impl OrderPaths {
 
     /// `M2` / `M30`: nothing moves after it.
     fn program_end(block: &Block) -> bool {
-        matches!(&block.kind, BlockKind::Command(c)
-            if c.text.split_whitespace().any(|w| matches!(w.to_ascii_uppercase().as_str(), "M2" | "M02" | "M30")))
+        matches!(&block.kind, BlockKind::Command(c) if c.ends_program())
     }
 
     /// Writes the held barriers after the segment, which ends `end`.
