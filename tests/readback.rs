@@ -515,10 +515,7 @@ fn presets_without_a_machine_are_read_as_their_backend_firmware() {
 
 /// `printed` read back against `source` on a LinuxCNC mill (Cartesian, no machine).
 fn verify_cartesian(source: &str, printed: &str) -> (Figures, Vec<&'static str>) {
-    let controller = ncpost::machine::Controller {
-        flavour: Some(ncpost::machine::Flavour::Linuxcnc),
-        ..Default::default()
-    };
+    let controller = ncpost::machine::Controller::of(Some(ncpost::machine::Flavour::Linuxcnc));
     read_back(Kinematics::Cartesian, &controller, None, source, printed)
 }
 

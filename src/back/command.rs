@@ -226,8 +226,8 @@ impl<W: Write> Emitter<W> {
 
     /// A copied line in RS274/NGC or Fanuc macro syntax, for RepRapFirmware, which reads
     /// neither: a line that only sets parameters is left out as a comment with a warning
-    /// (nothing RepRapFirmware runs can read the value; the firmware would report the
-    /// line as an error), any other use is an error. `Ok(true)` when the line is dealt
+    /// (nothing RepRapFirmware runs can read the value, and the line is not one of its
+    /// commands), any other use is an error. `Ok(true)` when the line is dealt
     /// with, `Ok(false)` when it is RepRapFirmware's own (printed as written).
     fn rrf_ngc_line(
         &mut self,

@@ -306,6 +306,20 @@ pub struct Controller {
 }
 
 impl Controller {
+    /// The controller of `flavour`'s firmware as it comes: its minimum speed, `G0` rule
+    /// and dwell unit, no caps (a preset without a machine is timed and read back so).
+    ///
+    /// ```
+    /// use ncpost::machine::{Controller, Flavour};
+    /// assert_eq!(Controller::of(Some(Flavour::Grbl)).min_speed(), 1.0);
+    /// ```
+    pub fn of(flavour: Option<Flavour>) -> Controller {
+        Controller {
+            flavour,
+            ..Controller::default()
+        }
+    }
+
     /// The lowest speed the controller moves at, mm/min: the one set, else the
     /// flavour's.
     ///

@@ -152,12 +152,9 @@ impl Model {
         let controller = polar
             .map(|p| &p.controller)
             .or(machine.map(|m| &m.controller));
-        let model = controller.map(Model::new).unwrap_or_else(|| {
-            Model::new(&Controller {
-                flavour,
-                ..Controller::default()
-            })
-        });
+        let model = controller
+            .map(Model::new)
+            .unwrap_or_else(|| Model::new(&Controller::of(flavour)));
         let timing = resolve_timing(run, pass, model.timing);
         model.with_timing(timing)
     }

@@ -122,10 +122,10 @@ fn plan(preset: &Preset, timing: Option<Timing>) -> Option<(TapPoint, Verifier)>
         .unwrap_or(preset.passes.len());
     // Without a machine the program is read as the backend's firmware reads it (its
     // G0 rule, minimum speed and dwell unit), not as RepRapFirmware's defaults.
-    let controller = preset.controller().cloned().unwrap_or_else(|| Controller {
-        flavour: preset.backend_flavour(),
-        ..Controller::default()
-    });
+    let controller = preset
+        .controller()
+        .cloned()
+        .unwrap_or_else(|| Controller::of(preset.backend_flavour()));
     let timing = timing.unwrap_or(controller.timing);
     let model = Model::new(&controller).with_timing(timing);
     let queue: Queue = Arc::new(Mutex::new(VecDeque::new()));

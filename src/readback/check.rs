@@ -373,7 +373,7 @@ impl Checker {
             self.seg[2] += (length / capped).max(cap_time);
         }
         let complete = self.kin.complete(&m.to);
-        if (complete && self.hits(&end, &target)) || (!complete && target.partial) {
+        if (complete && self.hits(&end, &target)) || (!complete && target.partial()) {
             self.close(line);
         } else if complete && self.target(1).is_some_and(|next| self.hits(&end, &next)) {
             // Vertex `j` was missed: how far its segment ended from it counts (unless
@@ -381,7 +381,7 @@ impl Checker {
             // with the next one.
             if target.machine {
                 self.unmatched(target.line);
-            } else if !(target.partial || target.fresh || self.blind) {
+            } else if !(target.partial() || target.fresh || self.blind) {
                 self.figures
                     .tip
                     .note(distance(&start.0, &target.tip), line, target.line);

@@ -496,7 +496,6 @@ mod tests {
             arc: None,
             restore: 0.0,
             machine: false,
-            partial: false,
             known: AxisSet::XYZ,
             line,
         }

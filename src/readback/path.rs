@@ -150,14 +150,20 @@ pub struct Vertex {
     /// A `G53` move: its end is in the machine frame, which the programmed frame's
     /// offsets do not reach; it is matched by the printed program's `G53` move.
     pub machine: bool,
-    /// The target leaves X or Y unknown (before homing ends, say): a printed end whose
-    /// place in the plane the controller does not know reaches it, and so does one that
-    /// agrees with it on the axes in `known`. (An unknown Z counts as 0 on both sides.)
-    pub partial: bool,
-    /// Of X, Y and Z, the axes the programmed target knows (all three for a tool pose).
+    /// Of X, Y and Z, the axes the programmed target knows (all three for a tool pose):
+    /// a printed point is compared with it on these (an unknown one counts as 0).
     pub known: AxisSet,
     /// Source line.
     pub line: u32,
+}
+
+impl Vertex {
+    /// The target leaves X or Y unknown (before homing ends, say): a printed end whose
+    /// place in the plane the controller does not know reaches it, and so does one that
+    /// agrees with it on the axes it knows.
+    pub fn partial(&self) -> bool {
+        !(self.known.contains(Axis::X) && self.known.contains(Axis::Y))
+    }
 }
 
 /// Turns the IR before the machine passes into [`Vertex`]es.
@@ -252,10 +258,6 @@ impl Tap {
             arc,
             restore,
             machine: m.machine_frame,
-            partial: match &m.target {
-                Target::Joints(j) => !(j.known.contains(Axis::X) && j.known.contains(Axis::Y)),
-                Target::Pose(_) => false,
-            },
             known: match &m.target {
                 Target::Joints(j) => j.known.intersection(AxisSet::XYZ),
                 Target::Pose(_) => AxisSet::XYZ,
